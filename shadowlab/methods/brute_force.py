@@ -1,0 +1,90 @@
+"""``brute_force``: every view sample against every triangle's shadow volume.
+
+The slow but simple oracle. Triangle setup builds the four planes of each shadow
+volume (``shadowlab.geometry.planes``); the test loops over triangles in unrolled
+chunks (``lax.fori_loop``) and is vectorized over all samples, so XLA fuses each
+chunk into one pass over the samples. A sample is shadowed when it is inside any
+volume: inside all three edge planes (inclusive) and more than the cap bias behind
+the cap.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry.planes import shadow_volume_planes
+from ..scene.view import hard_light
+from ..timing import StageTimer
+from .common import bucket, cap_bias, precision_mode, view_samples
+from .registry import Option, register
+from .result import ShadowResult
+
+
+@jax.jit
+def setup(tri, light):
+    """Planes [T, 16] (four planes of four coefficients) and valid [T] from tri [T, 3, 3]."""
+    planes, valid = shadow_volume_planes(tri, light)
+    return planes.reshape(tri.shape[0], 16), valid
+
+
+@functools.lru_cache(maxsize=None)
+def _test_kernel(chunk: int):
+    @jax.jit
+    def test(points, planes, valid, bias):
+        """bool [S]: points [S, 3] inside any of the volumes planes [T, 16] (T % chunk == 0)."""
+        px, py, pz = points[:, 0], points[:, 1], points[:, 2]
+
+        def body(i, shadow):
+            blk = jax.lax.dynamic_slice_in_dim(planes, i * chunk, chunk)
+            ok = jax.lax.dynamic_slice_in_dim(valid, i * chunk, chunk)
+            for j in range(chunk):
+                p = blk[j]
+                e0 = px * p[0] + py * p[1] + pz * p[2] + p[3]
+                e1 = px * p[4] + py * p[5] + pz * p[6] + p[7]
+                e2 = px * p[8] + py * p[9] + pz * p[10] + p[11]
+                cap = px * p[12] + py * p[13] + pz * p[14] + p[15]
+                shadow = shadow | ((e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap < -bias) & ok[j])
+            return shadow
+
+        return jax.lax.fori_loop(0, planes.shape[0] // chunk, body,
+                                 jnp.zeros(points.shape[0], dtype=bool))
+    return test
+
+
+@register("brute_force", doc="every view sample against every triangle's shadow volume "
+          "(the exact oracle)", paper="DESIGN.md (oracle)",
+          options={"chunk": Option(16, "triangles per unrolled loop step", allowed=(4, 8, 16, 32))})
+def brute_force(scene, gbuf, light, *, precision, shadow_eps, chunk):
+    timer = StageTimer()
+    with timer.stage("samples"):
+        samples = view_samples(gbuf, light)
+    with precision_mode(precision) as dtype:
+        t = bucket(scene.num_triangles, minimum=chunk)
+        tri = np.zeros((t, 3, 3), dtype=dtype)
+        tri[: scene.num_triangles] = scene.triangles
+        light_h = hard_light(light).homogeneous.astype(dtype)
+        planes, valid = timer.run("setup", setup, jnp.asarray(tri), jnp.asarray(light_h))
+        valid = valid.at[scene.num_triangles:].set(False)
+        points = jnp.asarray(samples.padded_position(dtype))
+        bias = jnp.asarray(cap_bias(scene, shadow_eps), dtype=dtype)
+        shadow = timer.run("test", _test_kernel(chunk), points, planes, valid, bias)
+    shadow = np.asarray(shadow)[: samples.count]
+    casters = int(np.asarray(valid).sum())
+    lit_values = ~shadow
+    lit = samples.scatter(lit_values, fill=False)
+    counters = {
+        "samples": samples.count,
+        "casters": casters,
+        "culled_triangles": scene.num_triangles - casters,
+        "tests": samples.count * casters,
+        "tests_per_pixel": samples.scatter(np.full(samples.count, casters, np.int64), fill=0),
+        "shadowed": int(shadow.sum()),
+        "lit": int(lit.sum()),
+    }
+    timings = dict(timer.times, total=timer.total)
+    return ShadowResult(lit, counters, timings, "brute_force",
+                        {"precision": precision, "shadow_eps": shadow_eps, "chunk": chunk})

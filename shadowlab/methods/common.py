@@ -1,0 +1,73 @@
+"""Helpers every method shares: precision, view samples, padding, result assembly."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+
+import jax
+import numpy as np
+
+from ..raycast import GBuffer, light_facing, shadow_epsilon
+from ..scene.mesh import Scene
+from ..scene.view import Light, hard_light
+
+
+def bucket(n: int, minimum: int = 1024) -> int:
+    """The power of two >= max(n, minimum): static capacities come in few sizes."""
+    return max(minimum, 1 << max(0, int(n - 1).bit_length()))
+
+
+@contextlib.contextmanager
+def precision_mode(precision: str):
+    """Run JAX in float64 mode for ``precision="float64"``, else leave it as it is."""
+    if precision == "float64":
+        with jax.enable_x64(True):
+            yield np.float64
+    else:
+        yield np.float32
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Samples:
+    """The view samples a hard-shadow method must classify.
+
+    Attributes:
+        index: int64 [S], flat pixel indices of valid, light-facing pixels.
+        position: float64 [S, 3], world positions.
+        shape: (H, W) of the image.
+    """
+
+    index: np.ndarray
+    position: np.ndarray
+    shape: tuple[int, int]
+
+    @property
+    def count(self) -> int:
+        return int(self.index.size)
+
+    def padded_position(self, dtype, capacity: int | None = None) -> np.ndarray:
+        """[capacity, 3] positions in ``dtype``; rows past ``count`` are zeros."""
+        cap = capacity or bucket(self.count)
+        out = np.zeros((cap, 3), dtype=dtype)
+        out[: self.count] = self.position
+        return out
+
+    def scatter(self, values: np.ndarray, fill=0) -> np.ndarray:
+        """An image [H, W] with ``values[:count]`` at the sample pixels, ``fill`` elsewhere."""
+        values = np.asarray(values)[: self.count]
+        out = np.full(self.shape[0] * self.shape[1], fill, dtype=values.dtype)
+        out[self.index] = values
+        return out.reshape(self.shape)
+
+
+def view_samples(gbuf: GBuffer, light: Light) -> Samples:
+    """Valid pixels whose camera-facing normal faces the light (all others are unlit)."""
+    facing = light_facing(gbuf, hard_light(light))
+    idx = np.flatnonzero(facing)
+    return Samples(idx, gbuf.position.reshape(-1, 3)[idx], gbuf.valid.shape)
+
+
+def cap_bias(scene: Scene, shadow_eps: float) -> float:
+    """The cap-plane bias in world units (same offset as the Embree reference)."""
+    return shadow_epsilon(scene, shadow_eps)

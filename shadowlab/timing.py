@@ -1,0 +1,67 @@
+"""Stage timing with compile time kept apart from run time.
+
+``compiled(fn, *args)`` lowers and compiles a jitted function once per argument
+signature (shapes, dtypes, static values, x64 mode) and records how long that took;
+later calls reuse the executable. ``StageTimer`` accumulates wall-clock seconds per
+stage, blocking on JAX results so asynchronous dispatch is not mistaken for speed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+import jax
+
+_COMPILED: dict = {}
+
+
+def _signature(args) -> tuple:
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    sig = []
+    for leaf in leaves:
+        if hasattr(leaf, "shape") and hasattr(leaf, "dtype"):
+            sig.append((tuple(leaf.shape), str(leaf.dtype)))
+        else:
+            sig.append(("static", leaf))
+    return (tree, tuple(sig), bool(jax.config.jax_enable_x64))
+
+
+def compiled(fn, *args):
+    """(executable, compile_seconds) for jitted ``fn`` at ``args``; 0 s when cached."""
+    key = (fn, _signature(args))
+    exe = _COMPILED.get(key)
+    if exe is not None:
+        return exe, 0.0
+    t0 = time.perf_counter()
+    exe = fn.lower(*args).compile()
+    dt = time.perf_counter() - t0
+    _COMPILED[key] = exe
+    return exe, dt
+
+
+class StageTimer:
+    """Collects ``{stage: seconds}`` and ``{stage + "_compile": seconds}``."""
+
+    def __init__(self):
+        self.times: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def stage(self, name: str):
+        t0 = time.perf_counter()
+        yield
+        self.times[name] = self.times.get(name, 0.0) + time.perf_counter() - t0
+
+    def run(self, name: str, fn, *args):
+        """Compile (timed as ``name_compile``) and run (timed as ``name``) jitted fn."""
+        exe, dt = compiled(fn, *args)
+        self.times[name + "_compile"] = self.times.get(name + "_compile", 0.0) + dt
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(exe(*args))
+        self.times[name] = self.times.get(name, 0.0) + time.perf_counter() - t0
+        return out
+
+    @property
+    def total(self) -> float:
+        """Run time of all stages, compile excluded."""
+        return sum(v for k, v in self.times.items() if not k.endswith("_compile"))
