@@ -205,6 +205,9 @@ def _load_file(p: Path, ext: str) -> Scene:
         # process=False keeps the soup exactly as written (no merging, no repair).
         loaded = trimesh.load(str(p), file_type=ext, process=False, force=None)
     except Exception as exc:  # trimesh raises many exception types on bad files
+        if isinstance(exc, IndexError) and "out of bounds" in str(exc):
+            # numpy's message when a parser indexes the vertices with a bad face
+            raise SceneError(f"{p}: face indices out of range ({exc})") from exc
         raise SceneError(f"{p}: cannot be read as .{ext}: {exc}") from exc
 
     parts: list[tuple[str, np.ndarray, np.ndarray]] = []
@@ -220,6 +223,9 @@ def _load_file(p: Path, ext: str) -> Scene:
     elif isinstance(loaded, trimesh.Trimesh):
         parts.append((p.stem, np.asarray(loaded.vertices, dtype=np.float64),
                       np.asarray(loaded.faces)))
+    elif type(loaded).__name__ in ("PointCloud", "Path2D", "Path3D"):
+        raise SceneError(f"{p}: the mesh is empty (no triangles; the file holds a "
+                         f"{type(loaded).__name__})")
     else:
         raise SceneError(f"{p}: contains no triangle mesh (got {type(loaded).__name__})")
 
