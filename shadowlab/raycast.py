@@ -4,14 +4,18 @@ Embree works in float32. Primary hits are turned into float64 world positions fr
 the hit triangle's float64 vertices and the barycentrics Embree returns, so every
 sample lies on its triangle's plane up to float64 rounding.
 
-Self-intersection of shadow rays is handled by an offset: a shadow ray starts at
-``p + eps * n``, where ``n`` is the sample's geometric normal turned to face the
-camera (which, for a lit candidate, also faces the light) and
-``eps = shadow_eps * scene.diagonal``, and it ends ``eps`` short of a point light.
-A blocker nearer to the sample than ``eps`` (a contact) is therefore missed; the
-exact methods use the same ``eps`` as their cap-plane bias, so both sides agree
-away from such contacts and shadow boundaries. The default ``shadow_eps`` is
-``1e-5``, several hundred float32 ulps of a position at the scene's scale.
+Shadow rays are cast *from the light towards the sample* and stop short of it where
+they come within ``eps`` of the sample's tangent plane, ``eps = shadow_eps *
+scene.diagonal`` (default ``shadow_eps = 1e-5``): the ray is cut by
+``eps / max(n.l, 1e-6)`` along its length, ``n`` the sample's normal and ``l`` the unit
+direction to the light. The sample's own triangle (and any surface through the
+sample) is met exactly at the sample, so it is never hit, even for grazing rays whose
+float32 hit distance is ill-conditioned; the segment tested is the exact segment
+from the light to the sample less that cut. Only a blocker within ``eps`` of the
+sample's tangent plane and on the ray (a contact) is missed. For a light at infinity the ray starts outside the scene's
+bounding box. The exact methods use the same ``eps`` as their cap-plane bias, so the two
+agree everywhere except within ``eps`` of contacts and within float32 rounding of
+shadow boundaries; see docs/exactness.md for the measured tolerance.
 """
 
 from __future__ import annotations
@@ -146,6 +150,36 @@ def occluded(scene: Scene, origins: np.ndarray, directions: np.ndarray,
     return out
 
 
+def segments_occluded(scene: Scene, points: np.ndarray, normals: np.ndarray,
+                      light_points: np.ndarray | None = None,
+                      light_dirs: np.ndarray | None = None, eps: float = 0.0) -> np.ndarray:
+    """bool [N]: is the segment from each point [N, 3] to its light point blocked?
+
+    Give ``light_points`` [N or 1, 3] (positions on the light) or ``light_dirs``
+    [N or 1, 3] (unit directions to a light at infinity). The ray runs from the light
+    to the point and stops where it comes within ``eps`` (world units) of the plane
+    through the point with unit normal ``normals`` [N, 3].
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if light_points is not None:
+        origin = np.broadcast_to(light_points, points.shape)
+        seg = points - origin
+        length = np.linalg.norm(seg, axis=1)
+    else:
+        w = np.broadcast_to(light_dirs, points.shape)
+        lo, hi = scene.bounds
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        # Start outside the bounding box: beyond its farthest corner along w.
+        reach = np.max(w @ corners.T, axis=1) - np.einsum("ij,ij->i", points, w)
+        length = np.maximum(reach, 0) + 0.01 * max(scene.diagonal, 1e-30)
+        origin = points + w * length[:, None]
+        seg = points - origin
+    direction = seg / np.maximum(length, 1e-300)[:, None]
+    facing = np.maximum(-np.einsum("ij,ij->i", direction, normals), 1e-6)
+    return occluded(scene, origin, direction, np.maximum(length - eps / facing, 0.0))
+
+
 def render_gbuffer(scene: Scene, camera: Camera) -> GBuffer:
     """Cast one primary ray per pixel centre; see :class:`GBuffer` for the fields."""
     origins, dirs = camera.primary_rays()
@@ -206,10 +240,10 @@ def reference_shadows(scene: Scene, gbuf: GBuffer, light: Light,
     p = gbuf.position.reshape(-1, 3)[idx]
     n = gbuf.normal.reshape(-1, 3)[idx]
     eps = shadow_epsilon(scene, shadow_eps)
-    origin = p + eps * n
-    d, dist = hl.to_light(origin)
-    tfar = dist - eps if isinstance(hl, PointLight) else dist
-    blocked = occluded(scene, origin, d, np.maximum(tfar, 0.0))
+    if isinstance(hl, PointLight):
+        blocked = segments_occluded(scene, p, n, light_points=hl.position[None], eps=eps)
+    else:
+        blocked = segments_occluded(scene, p, n, light_dirs=-hl.direction[None], eps=eps)
     lit = np.zeros(gbuf.valid.size, bool)
     lit[idx] = ~blocked
     return lit.reshape(gbuf.valid.shape)
@@ -242,10 +276,12 @@ def soft_reference(scene: Scene, gbuf: GBuffer, light: SphereLight, rays_per_pix
     """Fraction of an area light's disk visible from each pixel, by stratified sampling.
 
     The light's silhouette disk as seen from the sample (perpendicular to the direction
-    to its centre; for a sun, the disk of angular radius ``angular_radius_deg``) is
-    sampled area-uniformly, without cosine weighting: ``rays_per_pixel`` is rounded
-    up to a square k*k, one jittered sample per stratum of the concentric disk map.
-    A light sample below the surface's tangent plane counts as blocked.
+    to its centre; for a sun, the disk of angular radius ``angular_radius_deg`` in the
+    tangent plane at unit distance) is sampled area-uniformly, without cosine
+    weighting: ``rays_per_pixel`` is rounded up to a square k*k, one jittered sample per
+    stratum of the concentric disk map. A light sample below the surface's tangent
+    plane counts as blocked. Each light sample is tested with the same segment test
+    as :func:`reference_shadows`.
 
     Returns:
         float64 [H, W] in [0, 1]; 0 on invalid pixels.
@@ -255,10 +291,9 @@ def soft_reference(scene: Scene, gbuf: GBuffer, light: SphereLight, rays_per_pix
     k = max(1, math.ceil(math.sqrt(rays_per_pixel)))
     n_rays = k * k
     valid_idx = np.flatnonzero(gbuf.valid)
-    p = gbuf.position.reshape(-1, 3)[valid_idx]
+    pos = gbuf.position.reshape(-1, 3)[valid_idx]
     nrm = gbuf.normal.reshape(-1, 3)[valid_idx]
     eps = shadow_epsilon(scene, shadow_eps)
-    origin = p + eps * nrm
     rng = np.random.default_rng(seed)
     vis = np.zeros(len(valid_idx))
     si, sj = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
@@ -271,39 +306,40 @@ def soft_reference(scene: Scene, gbuf: GBuffer, light: SphereLight, rays_per_pix
         starts = tqdm(starts, desc="soft reference", unit="block", leave=False)
     for lo in starts:
         hi = min(lo + block, len(valid_idx))
-        o = origin[lo:hi]
+        p = pos[lo:hi]
         m = hi - lo
-        ju = (si[None] + rng.random((m, n_rays))) / k
-        jv = (sj[None] + rng.random((m, n_rays))) / k
-        x, y = _concentric_disk(ju, jv)
+        x, y = _concentric_disk((si[None] + rng.random((m, n_rays))) / k,
+                                (sj[None] + rng.random((m, n_rays))) / k)
         if light.is_sun:
-            w = np.broadcast_to(-light.direction, o.shape)
-            radius = math.tan(math.radians(light.angular_radius_deg))
-            centre = w[:, None, :]                       # at unit distance
-            e1, e2 = _orthonormal(w)
-            target = centre + radius * (x[..., None] * e1[:, None] + y[..., None] * e2[:, None])
-            dirs = target
-            tfar = np.full((m, n_rays), np.inf)
+            w = np.broadcast_to(-light.direction, p.shape)
+            centre = p + w                                   # the disk at unit distance
+            disk_r = np.full(m, math.tan(math.radians(light.angular_radius_deg)))
         else:
-            to_c = light.position - o
+            to_c = light.position - p
             dist = np.linalg.norm(to_c, axis=1)
             w = to_c / dist[:, None]
             r = light.radius
             inside = dist <= r
-            rr = np.where(inside, 0.0, r * r / np.maximum(dist, 1e-300))
+            # The silhouette circle of the sphere seen from p: centre pulled towards p by
+            # r^2 / dist, radius r * sqrt(1 - r^2 / dist^2).
+            pull = np.where(inside, 0.0, r * r / np.maximum(dist, 1e-300))
             disk_r = np.where(inside, r, r * np.sqrt(np.maximum(1 - (r / dist) ** 2, 0)))
-            centre = light.position - rr[:, None] * w
-            e1, e2 = _orthonormal(w)
-            target = centre[:, None] + disk_r[:, None, None] * (
-                x[..., None] * e1[:, None] + y[..., None] * e2[:, None])
-            dirs = target - o[:, None]
-            tfar = np.linalg.norm(dirs, axis=-1) - eps
-        length = np.linalg.norm(dirs, axis=-1, keepdims=True)
-        dirs = dirs / length
+            centre = light.position - pull[:, None] * w
+        e1, e2 = _orthonormal(w)
+        target = centre[:, None] + disk_r[:, None, None] * (
+            x[..., None] * e1[:, None] + y[..., None] * e2[:, None])      # [m, n, 3]
+        dirs = target - p[:, None]
+        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
         above = np.einsum("mri,mi->mr", dirs, nrm[lo:hi]) > 0
-        blocked = occluded(scene, np.repeat(o, n_rays, axis=0), dirs.reshape(-1, 3),
-                           np.maximum(tfar, 0).reshape(-1)).reshape(m, n_rays)
-        vis[lo:hi] = (above & ~blocked).mean(axis=1)
+        flat_p = np.repeat(p, n_rays, axis=0)
+        flat_n = np.repeat(nrm[lo:hi], n_rays, axis=0)
+        if light.is_sun:
+            blocked = segments_occluded(scene, flat_p, flat_n, light_dirs=dirs.reshape(-1, 3),
+                                        eps=eps)
+        else:
+            blocked = segments_occluded(scene, flat_p, flat_n,
+                                        light_points=target.reshape(-1, 3), eps=eps)
+        vis[lo:hi] = (above & ~blocked.reshape(m, n_rays)).mean(axis=1)
     out = np.zeros(gbuf.valid.size)
     out[valid_idx] = vis
     return out.reshape(gbuf.valid.shape)

@@ -48,6 +48,11 @@ def _normalize_plane(n, d):
     return jnp.concatenate([n / safe[..., None], (d / safe)[..., None]], axis=-1), length
 
 
+def degeneracy_tolerance(dtype) -> float:
+    """Relative size below which a triangle counts as degenerate or edge-on: 64 ulps."""
+    return 64 * float(jnp.finfo(dtype).eps)
+
+
 def shadow_volume_planes(tri, light):
     """Edge planes and cap of every triangle's shadow volume.
 
@@ -57,9 +62,14 @@ def shadow_volume_planes(tri, light):
 
     Returns:
         planes: [T, 4, 4]; rows 0-2 edge planes (edge v0v1, v1v2, v2v0), row 3 the cap.
-        valid: bool [T]; False for degenerate triangles and triangles edge-on to the
-            light (their shadow volume has no interior).
+        valid: bool [T]; False for triangles whose shadow volume has no interior at the
+            working precision: degenerate (zero-area) triangles and triangles edge-on
+            to the light. The test is relative: the third vertex must lie more than
+            ``degeneracy_tolerance`` times its distance from the edge off each edge
+            plane, and the light (direction) that far off the triangle's plane. Without
+            it, a collinear triangle's rounding residues give it a half-space "volume".
     """
+    tol = degeneracy_tolerance(tri.dtype)
     v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
     planes = []
     ok = jnp.ones(tri.shape[0], dtype=bool)
@@ -68,14 +78,16 @@ def shadow_volume_planes(tri, light):
         side = jnp.sum(n * c, axis=-1) + d
         sign = jnp.where(side < 0, -1, 1).astype(tri.dtype)
         plane, length = _normalize_plane(n * sign[:, None], d * sign)
-        ok &= (length > 0) & (side != 0)
+        reach = jnp.maximum(jnp.linalg.norm(c - a, axis=-1), jnp.linalg.norm(c - b, axis=-1))
+        ok &= (length > 0) & (jnp.abs(side) > tol * length * reach)
         planes.append(plane)
     cap_n = jnp.cross(v1 - v0, v2 - v0)
     cap_d = -jnp.sum(cap_n * v0, axis=-1)
     light_side = jnp.sum(cap_n * light[:3], axis=-1) + light[3] * cap_d
     sign = jnp.where(light_side < 0, -1, 1).astype(tri.dtype)
     cap, length = _normalize_plane(cap_n * sign[:, None], cap_d * sign)
-    ok &= (length > 0) & (light_side != 0)
+    to_light = jnp.linalg.norm(light[:3] - light[3] * v0, axis=-1)
+    ok &= (length > 0) & (jnp.abs(light_side) > tol * length * to_light)
     planes.append(cap)
     return jnp.stack(planes, axis=1), ok
 
