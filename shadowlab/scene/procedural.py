@@ -1,0 +1,806 @@
+"""Deterministic procedural scenes, each with a default view (camera + light).
+
+Every scene is a :class:`~shadowlab.scene.mesh.Scene` (float64 vertices in world
+units, int32 faces, one object id per distinct object); Y is up and the ground, when
+there is one, is object 0 (``"ground"``), a plane at y = 0. The same parameters and
+``seed`` always give bit-identical arrays (``numpy.random.default_rng(seed)``).
+
+=============  ==========================================================  ==========
+name           what it stresses                                            default tris
+=============  ==========================================================  ==========
+sphere_grid    n x n closed UV spheres over a ground (Peciva et al. 2013's   8,098
+               sphere scene); triangles per sphere and object count are
+               independent knobs
+gate           a near gate with bars, trees with leaf crowns, a distant      4,294
+               house (Sintorn et al. 2014, Fig. 1): high-frequency depth
+fuzzy          clusters of thin fur strands ("bushes"): many tiny casters    10,002
+terrain        a fractal height field under a low sun (soft shadows)         18,050
+blobs          marching-cubes surfaces of a sum of Gaussians over a ground   5,092
+soup           degenerate, coplanar, interpenetrating, non-manifold, open    2,002
+               and duplicated triangles (robustness)
+=============  ==========================================================  ==========
+
+Use :func:`make` (validates parameters) and :func:`default_view`; :func:`generators`
+lists every generator's parameters with their defaults. Default views are
+256 x 256, frame the interesting region, and have near/far planes fitted to the
+geometry actually inside the view frustum (:func:`fit_clip_range`).
+
+Scaling: the size parameters (``triangles_per_sphere`` and ``n``, ``leaves_per_tree``
+and ``trees``, ``triangles``, ``size``, ``grid``, ``count``) scale the triangle
+count as documented per generator; construction is vectorised NumPy (a Python loop
+per object at most), so 10^5-10^6 triangles build in about a second. Where a scene
+is made of many small casters (leaves, fur strands) their size shrinks as the count
+grows so that the scene keeps its look (constant total caster area); the soup instead
+spreads its defects over an area growing with their count (constant density).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import numbers
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from . import primitives as prim
+from .mesh import Scene, SceneError
+from .view import Camera, PointLight, SphereLight, View
+
+DEFAULT_RESOLUTION = (256, 256)
+
+
+# --------------------------------------------------------------------------- registry
+
+@dataclasses.dataclass(frozen=True)
+class Param:
+    """One generator parameter: its default, type (int or float) and inclusive range.
+
+    A default of ``None`` means "derived from the other parameters" (documented per
+    generator); such a parameter also accepts ``None``.
+    """
+
+    default: Any
+    kind: type = int
+    lo: float | None = None
+    hi: float | None = None
+    doc: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Generator:
+    """A procedural scene generator.
+
+    Attributes:
+        name: registry key.
+        build: ``build(**params) -> Scene``; validates like :func:`make` (it is
+            ``functools.partial(make, name)``), missing parameters take their defaults.
+        defaults: every parameter (including ``seed``) with its default value.
+        doc: one line describing the scene.
+        view: ``view(scene, params) -> View``, the default camera (256 x 256) and light
+            for ``scene`` built with ``params`` (a complete parameter dict).
+        params: the parameter specifications (type, range, meaning).
+    """
+
+    name: str
+    build: Callable[..., Scene]
+    defaults: dict
+    doc: str
+    view: Callable[[Scene, dict], View]
+    params: Mapping[str, Param] = dataclasses.field(default_factory=dict)
+
+
+GENERATORS: dict[str, Generator] = {}
+_BUILDERS: dict[str, Callable[..., Scene]] = {}
+
+
+def _register(name: str, doc: str, params: dict[str, Param], view: Callable):
+    """Decorator: register ``fn(**params) -> Scene`` as generator ``name``."""
+    def deco(fn):
+        _BUILDERS[name] = fn
+        GENERATORS[name] = Generator(
+            name=name, build=functools.partial(make, name),
+            defaults={k: p.default for k, p in params.items()}, doc=doc, view=view,
+            params=dict(params))
+        return fn
+    return deco
+
+
+def generators() -> dict[str, dict]:
+    """name -> {parameter: default} for every generator (for listings)."""
+    return {name: dict(g.defaults) for name, g in GENERATORS.items()}
+
+
+def _generator(name: str) -> Generator:
+    gen = GENERATORS.get(name)
+    if gen is None:
+        raise SceneError(f"unknown procedural scene {name!r}; available: "
+                         f"{', '.join(GENERATORS)}")
+    return gen
+
+
+def _check_value(gen: Generator, key: str, value: Any) -> Any:
+    spec = gen.params[key]
+    where = f"{gen.name}: parameter {key!r}"
+    if value is None:
+        if spec.default is None:
+            return None
+        raise SceneError(f"{where} must not be None")
+    if isinstance(value, (bool, np.bool_)):
+        raise SceneError(f"{where} must be {'an integer' if spec.kind is int else 'a number'}, "
+                         f"got {value!r}")
+    if spec.kind is int:
+        if not isinstance(value, numbers.Integral):
+            raise SceneError(f"{where} must be an integer, got {value!r} "
+                             f"({type(value).__name__})")
+        value = int(value)
+    else:
+        if not isinstance(value, numbers.Real) or not math.isfinite(value):
+            raise SceneError(f"{where} must be a finite number, got {value!r}")
+        value = float(value)
+    if spec.lo is not None and value < spec.lo:
+        raise SceneError(f"{where} must be >= {spec.lo}, got {value}")
+    if spec.hi is not None and value > spec.hi:
+        raise SceneError(f"{where} must be <= {spec.hi}, got {value}")
+    return value
+
+
+def resolve_params(name: str, **params) -> dict:
+    """The complete, validated parameter dict of generator ``name``.
+
+    Raises:
+        SceneError: unknown generator, unknown parameter (listing the allowed ones),
+            or a value of the wrong type or out of range (naming the parameter).
+    """
+    gen = _generator(name)
+    unknown = sorted(set(params) - set(gen.defaults))
+    if unknown:
+        raise SceneError(f"{name}: unknown parameter{'s' if len(unknown) > 1 else ''} "
+                         f"{', '.join(map(repr, unknown))}; allowed: "
+                         f"{', '.join(gen.defaults)}")
+    merged = dict(gen.defaults)
+    merged.update(params)
+    return {k: _check_value(gen, k, v) for k, v in merged.items()}
+
+
+def _scene_name(gen: Generator, params: dict) -> str:
+    shown = [f"{k}={v}" for k, v in params.items() if k == "seed" or v != gen.defaults[k]]
+    return f"{gen.name}({', '.join(shown)})"
+
+
+def make(name: str, **params) -> Scene:
+    """Build procedural scene ``name``; missing parameters take their defaults.
+
+    The scene's name records the seed and every non-default parameter, e.g.
+    ``"fuzzy(seed=0, triangles=400000)"``.
+
+    Raises:
+        SceneError: see :func:`resolve_params`; also for parameter combinations a
+            generator cannot build (the message names the parameter).
+    """
+    gen = _generator(name)
+    full = resolve_params(name, **params)
+    return _BUILDERS[name](name=_scene_name(gen, full), **full)
+
+
+def default_view(name: str, scene: Scene | None = None, **params) -> View:
+    """The default camera and light of generator ``name``.
+
+    Args:
+        scene: the scene to frame (built from ``params`` when omitted). The near and
+            far planes are always fitted to ``scene`` itself.
+        params: the generator parameters the scene was built with.
+    """
+    gen = _generator(name)
+    full = resolve_params(name, **params)
+    if scene is None:
+        scene = _BUILDERS[name](name=_scene_name(gen, full), **full)
+    return gen.view(scene, full)
+
+
+# --------------------------------------------------------------------------- helpers
+
+class _Parts:
+    """Collects meshes as objects and assembles one :class:`Scene`."""
+
+    def __init__(self):
+        self.vertices: list[np.ndarray] = []
+        self.faces: list[np.ndarray] = []
+        self.object_id: list[np.ndarray] = []
+        self.names: list[str] = []
+        self._nv = 0
+
+    def add(self, name: str, mesh: prim.Mesh) -> None:
+        """Add ``mesh`` as one object."""
+        self.add_many([name], mesh, np.zeros(len(mesh[1]), dtype=np.int64))
+
+    def add_many(self, names: list[str], mesh: prim.Mesh, local_id: np.ndarray) -> None:
+        """Add ``mesh`` as ``len(names)`` objects; ``local_id`` [f] indexes ``names``."""
+        v, f = mesh
+        self.vertices.append(v)
+        self.faces.append(np.asarray(f, dtype=np.int64) + self._nv)
+        self.object_id.append(np.asarray(local_id, dtype=np.int64) + len(self.names))
+        self.names.extend(names)
+        self._nv += len(v)
+
+    def scene(self, name: str) -> Scene:
+        faces = np.concatenate(self.faces)
+        if self._nv > np.iinfo(np.int32).max:
+            raise SceneError(f"{name}: {self._nv} vertices do not fit int32 face indices")
+        return Scene(np.concatenate(self.vertices), faces.astype(np.int32),
+                     np.concatenate(self.object_id).astype(np.int32), tuple(self.names), name)
+
+
+def _ground(parts: _Parts, x_range, z_range) -> None:
+    """The ground: a horizontal rectangle at y = 0 (two triangles, normal +Y)."""
+    parts.add("ground", prim.quad_grid(x_range, z_range, 0.0))
+
+
+def _scatter(rng: np.random.Generator, k: int, x_range, z_range,
+             fill: float = 0.6) -> np.ndarray:
+    """float64 [k, 2]: k well-separated random (x, z) points in a rectangle.
+
+    One point per randomly chosen cell of a jittered grid with about k / fill cells, so
+    points never share a cell (cost O(k), no rejection loop).
+    """
+    (x0, x1), (z0, z1) = x_range, z_range
+    cells = max(k, math.ceil(k / fill))
+    nx = max(1, round(math.sqrt(cells * (x1 - x0) / (z1 - z0))))
+    nz = math.ceil(cells / nx)
+    chosen = rng.choice(nx * nz, size=k, replace=False)
+    jitter = 0.15 + 0.7 * rng.random((k, 2))
+    cx = (chosen % nx + jitter[:, 0]) / nx
+    cz = (chosen // nx + jitter[:, 1]) / nz
+    return np.stack([x0 + cx * (x1 - x0), z0 + cz * (z1 - z0)], axis=1)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _content_bounds(scene: Scene) -> np.ndarray:
+    """float64 [2, 3]: bounds of everything but the ground (object 0 named "ground")."""
+    keep = scene.object_id != 0 if scene.object_names[0] == "ground" else \
+        np.ones(scene.num_triangles, bool)
+    if not keep.any():
+        keep[:] = True
+    used = np.zeros(len(scene.vertices), bool)
+    used[scene.faces[keep].reshape(-1)] = True
+    pts = scene.vertices[used]
+    return np.stack([pts.min(axis=0), pts.max(axis=0)])
+
+
+# --------------------------------------------------------------------------- framing
+
+def fit_clip_range(scene: Scene, eye, target, up=(0.0, 1.0, 0.0), fov_y_deg: float = 50.0,
+                   aspect: float = 1.0, margin: float = 0.03, max_ratio: float = 1e4,
+                   chunk: int = 1 << 16) -> tuple[float, float]:
+    """Near and far distances that bracket the geometry inside a view frustum.
+
+    The exact depth range (along the view axis) of the scene clipped to the infinite
+    pyramid of the camera is the range over three candidate point sets: vertices
+    inside the pyramid, crossings of triangle edges with its four side planes, and hits
+    of its four corner rays on triangles. ``near`` is that minimum shrunk by
+    ``margin``, ``far`` the maximum grown by it; ``far / near <= max_ratio``.
+
+    Args:
+        scene: the geometry.
+        eye, target, up: camera placement (3 floats each).
+        fov_y_deg: vertical field of view, degrees; aspect: width / height.
+
+    Returns:
+        (near, far) in world units.
+
+    Raises:
+        SceneError: no triangle is inside the view.
+    """
+    cam = Camera(eye, target, up, fov_y_deg, 1.0, 2.0, (1, 1))
+    right, cam_up, back = cam.basis()
+    to_view = np.stack([right, cam_up, -back])            # rows: x right, y up, z depth
+    ty = math.tan(math.radians(fov_y_deg) / 2)
+    tx = ty * aspect
+    planes = np.array([[1.0, 0, -tx], [-1.0, 0, -tx], [0, 1.0, -ty], [0, -1.0, -ty]])
+    corners = np.array([[sx * tx, sy * ty, 1.0] for sx in (-1, 1) for sy in (-1, 1)])
+    verts = (scene.vertices - cam.eye) @ to_view.T
+    tol = 1e-9
+
+    def inside(p):                                       # p [..., 3] -> bool [...]
+        return np.all(p @ planes.T <= tol * np.abs(p).sum(-1, keepdims=True), axis=-1)
+
+    lo, hi = np.inf, -np.inf
+    used = np.zeros(len(verts), bool)
+    used[scene.faces.reshape(-1)] = True
+    v_in = verts[used & inside(verts)]
+    if len(v_in):
+        lo, hi = v_in[:, 2].min(), v_in[:, 2].max()
+    # Only triangles with vertices on both sides of some side plane can add edge
+    # crossings or corner-ray hits; those outside one plane entirely add nothing.
+    side = (verts @ planes.T > 0)[scene.faces]                          # [m, 3, 4]
+    straddle = np.flatnonzero(side.any(axis=(1, 2)) & ~side.all(axis=1).any(axis=1))
+    for start in range(0, len(straddle), chunk):
+        tri = verts[scene.faces[straddle[start:start + chunk]]]        # [c, 3, 3]
+        a, b = tri, np.roll(tri, -1, axis=1)                           # edges a -> b
+        sa, sb = a @ planes.T, b @ planes.T                            # [c, 3, 4]
+        crossing = sa * sb < 0
+        if crossing.any():
+            ci = np.nonzero(crossing)
+            t = sa[ci] / (sa[ci] - sb[ci])
+            pa, pb = a[ci[0], ci[1]], b[ci[0], ci[1]]
+            pts = pa + t[:, None] * (pb - pa)
+            z = pts[inside(pts), 2]
+            if len(z):
+                lo, hi = min(lo, z.min()), max(hi, z.max())
+        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+        s = -tri[:, 0]
+        q = np.cross(s, e1)
+        for d in corners:                                              # Moller-Trumbore
+            p = np.cross(d, e2)
+            det = np.einsum("ij,ij->i", e1, p)
+            ok = np.abs(det) > 1e-300
+            inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+            u = np.einsum("ij,ij->i", s, p) * inv
+            v = (q @ d) * inv
+            t = np.einsum("ij,ij->i", e2, q) * inv
+            hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+            if hit.any():
+                lo, hi = min(lo, t[hit].min()), max(hi, t[hit].max())  # depth = t * d.z
+    if not np.isfinite(hi) or hi <= 0:
+        raise SceneError(f"{scene.name}: no geometry inside the view from {cam.eye.tolist()}")
+    far = hi * (1 + margin)
+    near = max(lo * (1 - margin), far / max_ratio)
+    return float(near), float(far)
+
+
+def framed_view(scene: Scene, eye, target, light, fov_y_deg: float = 50.0,
+                resolution: tuple[int, int] = DEFAULT_RESOLUTION) -> View:
+    """A :class:`View` looking from ``eye`` at ``target`` (Y up) with near/far fitted
+    to ``scene`` by :func:`fit_clip_range`."""
+    aspect = resolution[0] / resolution[1]
+    near, far = fit_clip_range(scene, eye, target, (0.0, 1.0, 0.0), fov_y_deg, aspect)
+    cam = Camera(eye=eye, target=target, up=(0.0, 1.0, 0.0), fov_y_deg=fov_y_deg,
+                 near=near, far=far, resolution=resolution)
+    return View(cam, light)
+
+
+# --------------------------------------------------------------------------- sphere_grid
+
+SPHERE_RADIUS = 1.0     # world units
+SPHERE_SPACING = 3.0    # centre to centre
+SPHERE_LIFT = 0.5       # gap between a sphere's bottom and the ground
+
+
+def _sphere_grid_view(scene: Scene, params: dict) -> View:
+    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
+    w = 0.5 * max(x1 - x0, z1 - z0)                        # half width of the grid
+    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    eye = (cx, 1.5 * w + y1, cz + 2.0 * w + 2.0)
+    light = PointLight((cx + 0.8 * w, 2.5 * w + 2 * y1, cz - 0.4 * w))
+    return framed_view(scene, eye, (cx, 0.0, cz + 0.1 * w), light)
+
+
+@_register(
+    "sphere_grid",
+    "n x n closed UV spheres over a ground quad, lit by a point light above "
+    "(Peciva et al. 2013 sphere scene)",
+    {"n": Param(4, int, 1, 1000, "spheres per side of the grid"),
+     "triangles_per_sphere": Param(512, int, 6, 10_000_000,
+                                   "target triangles per sphere (UV sphere, ~)"),
+     "objects": Param(None, int, 1, None,
+                      "objects the sphere geometry is divided into (None: one per sphere)"),
+     "seed": Param(0, int, 0, None, "unused: the grid is regular")},
+    _sphere_grid_view)
+def _sphere_grid(name: str, n: int, triangles_per_sphere: int, objects: int | None,
+                 seed: int) -> Scene:
+    """n x n unit spheres, centres 3 units apart, floating 0.5 above a ground quad.
+
+    Each sphere is a closed UV sphere with ``stacks``, ``slices`` from
+    :func:`~shadowlab.scene.primitives.sphere_resolution` (``2 slices (stacks-1)``
+    triangles, within ~2% of ``triangles_per_sphere`` from 100 up). Triangles:
+    ``n^2 * 2 slices (stacks-1) + 2``.
+
+    ``objects`` divides the sphere geometry (the ground is always one more object,
+    id 0) without changing it:
+
+    * ``objects <= n^2``: spheres are merged, sphere s (row-major) going to object
+      ``floor(s objects / n^2)``; every object is a union of whole, closed spheres.
+    * ``objects > n^2``: each sphere is cut into ``floor((s+1) objects / n^2) -
+      floor(s objects / n^2)`` pieces of (almost) equal numbers of consecutive faces,
+      i.e. latitude bands from north to south (open surfaces); at most
+      ``n^2 * 2 slices (stacks-1)`` objects.
+    """
+    stacks, slices = prim.sphere_resolution(triangles_per_sphere)
+    sv, sf = prim.uv_sphere(stacks, slices)
+    k, per = n * n, len(sf)
+    coords = (np.arange(n) - (n - 1) / 2) * SPHERE_SPACING
+    gx, gz = np.meshgrid(coords, coords, indexing="ij")
+    centres = np.stack([gx.ravel(), np.full(k, SPHERE_RADIUS + SPHERE_LIFT), gz.ravel()], 1)
+    mesh = prim.instances(sv, sf, centres, SPHERE_RADIUS)
+    objects = k if objects is None else objects
+    if objects > k * per:
+        raise SceneError(f"{name}: parameter 'objects' = {objects} exceeds the {k * per} "
+                         f"sphere triangles")
+    label = [f"sphere_{i}_{j}" for i in range(n) for j in range(n)]
+    if objects <= k:
+        sphere_obj = np.arange(k) * objects // k
+        local = np.repeat(sphere_obj, per)
+        names = label if objects == k else [f"spheres{o}" for o in range(objects)]
+    else:
+        first = np.arange(k + 1) * objects // k                 # first object of sphere s
+        count = np.diff(first)
+        piece = np.arange(per)[None, :] * count[:, None] // per   # [k, per]
+        local = (first[:-1, None] + piece).reshape(-1)
+        owner = np.repeat(np.arange(k), count)
+        names = [f"{label[s]}.part{o - first[s]}" for o, s in enumerate(owner)]
+    parts = _Parts()
+    half = 0.5 * n * SPHERE_SPACING
+    _ground(parts, (-6 * half, 6 * half), (-6 * half, 6 * half))
+    parts.add_many(names, mesh, local)
+    return parts.scene(name)
+
+
+# --------------------------------------------------------------------------- gate
+
+GATE_Z = 3.0            # the gate's plane; the camera stands at z = 7.5
+HOUSE_Z = (-40.0, -32.0)
+TREE_X = (-14.0, 14.0)
+TREE_Z = (-28.0, -4.0)
+TREE_GAP = 2.5          # no tree trunk within this distance of x = 0
+
+
+def _gate_view(scene: Scene, params: dict) -> View:
+    light = PointLight((35.0, 24.0, 8.0))
+    return framed_view(scene, (0.3, 2.0, 9.5), (0.0, 1.2, -30.0), light, fov_y_deg=55.0)
+
+
+@_register(
+    "gate",
+    "a near gate with bars, trees with leaf crowns and a distant house "
+    "(Sintorn et al. 2014, Fig. 1): high-frequency depth",
+    {"trees": Param(12, int, 0, 100_000, "trees between the gate and the house"),
+     "leaves_per_tree": Param(300, int, 0, 10_000_000, "leaf triangles per crown"),
+     "bars": Param(9, int, 0, 10_000, "vertical bars of the gate"),
+     "seed": Param(0, int, 0, None, "random seed (tree placement and leaves)")},
+    _gate_view)
+def _gate(name: str, trees: int, leaves_per_tree: int, bars: int, seed: int) -> Scene:
+    """A gate 4.5 units in front of the camera, trees, and a house ~40 units away.
+
+    Objects: ground; gate posts, lintel, two rails and ``bars`` bars (closed boxes);
+    house walls, door, chimney (boxes) and gabled roof (closed prism); per tree a
+    trunk (closed 10-sided cylinder) and a crown of ``leaves_per_tree`` single-triangle
+    leaves with random orientations inside an ellipsoid. Leaf size scales as
+    ``(300 / leaves_per_tree)^(1/2)`` so a crown's leaf area stays constant.
+    Triangles: ``2 + 12 (5 + bars) + 44 + trees (40 + leaves_per_tree)``.
+    """
+    rng = np.random.default_rng(seed)
+    parts = _Parts()
+    _ground(parts, (-80.0, 80.0), (-110.0, 14.0))
+
+    z0, z1 = GATE_Z - 0.15, GATE_Z + 0.15
+    parts.add("gate.post_left", prim.box((-2.25, 0.0, z0), (-1.9, 3.3, z1)))
+    parts.add("gate.post_right", prim.box((1.9, 0.0, z0), (2.25, 3.3, z1)))
+    parts.add("gate.lintel", prim.box((-2.5, 3.3, z0 - 0.05), (2.5, 3.65, z1 + 0.05)))
+    rails_lo = np.array([[-1.9, 0.35, GATE_Z - 0.05], [-1.9, 2.75, GATE_Z - 0.05]])
+    parts.add_many(["gate.rail_low", "gate.rail_high"],
+                   prim.boxes(rails_lo, rails_lo + [3.8, 0.12, 0.1]), np.repeat([0, 1], 12))
+    if bars:
+        bx = np.linspace(-1.9, 1.9, bars + 2)[1:-1]
+        lo = np.stack([bx - 0.03, np.zeros(bars), np.full(bars, GATE_Z - 0.03)], 1)
+        parts.add_many([f"gate.bar{i}" for i in range(bars)],
+                       prim.boxes(lo, lo + [0.06, 3.3, 0.06]), np.repeat(np.arange(bars), 12))
+
+    (hz0, hz1) = HOUSE_Z
+    parts.add("house.walls", prim.box((-6.0, 0.0, hz0), (6.0, 4.5, hz1)))
+    parts.add("house.door", prim.box((-0.8, 0.0, hz1), (0.8, 2.3, hz1 + 0.12)))
+    parts.add("house.roof", prim.gable_prism((-6.6, 4.5, hz0 - 0.6), (6.6, 7.6, hz1 + 0.6)))
+    parts.add("house.chimney", prim.box((2.6, 5.0, hz0 + 1.8), (3.4, 8.4, hz0 + 2.6)))
+
+    if trees:
+        xz = _scatter(rng, trees, (TREE_X[0] + TREE_GAP, TREE_X[1] - TREE_GAP), TREE_Z)
+        xz[:, 0] += np.sign(xz[:, 0]) * TREE_GAP          # keep a corridor to the house
+        trunk_h = rng.uniform(2.4, 4.2, trees)
+        trunk_r = rng.uniform(0.14, 0.25, trees)
+        crown_r = rng.uniform(1.7, 2.6, trees)
+        crown_c = np.stack([xz[:, 0], trunk_h + 0.6 * crown_r, xz[:, 1]], 1)
+        cv, cf = prim.cylinder(10)
+        trunks = prim.instances(cv, cf, np.stack([xz[:, 0], np.zeros(trees), xz[:, 1]], 1),
+                                np.stack([trunk_r, trunk_h + 0.5 * crown_r, trunk_r], 1))
+        parts.add_many([f"tree{t}.trunk" for t in range(trees)], trunks,
+                       np.repeat(np.arange(trees), len(cf)))
+        if leaves_per_tree:
+            m = trees * leaves_per_tree
+            owner = np.repeat(np.arange(trees), leaves_per_tree)
+            d = _unit(rng.normal(size=(m, 3)))
+            rad = rng.random(m) ** 0.25                 # leaves favour the crown's shell
+            radii = crown_r[owner, None] * np.array([1.0, 0.85, 1.0])
+            centre = crown_c[owner] + d * rad[:, None] * radii
+            size = 0.45 * math.sqrt(300 / leaves_per_tree) * rng.uniform(0.7, 1.3, m)
+            leaf = np.array([[0.0, 0.6, 0.0], [-0.35, -0.3, 0.0], [0.35, -0.3, 0.0]])
+            rot = prim.random_rotations(rng, m)
+            corners = centre[:, None] + size[:, None, None] * np.einsum("mij,vj->mvi", rot, leaf)
+            parts.add_many([f"tree{t}.crown" for t in range(trees)],
+                           prim.triangle_soup(corners), owner)
+    return parts.scene(name)
+
+
+# --------------------------------------------------------------------------- fuzzy
+
+def _fuzzy_view(scene: Scene, params: dict) -> View:
+    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
+    w = 0.5 * max(x1 - x0, z1 - z0)
+    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    eye = (cx, 1.4 * w + y1, cz + 1.3 * w + 1.0)
+    light = PointLight((cx - 1.2 * w, 1.3 * w + 2 * y1, cz - 0.6 * w))
+    return framed_view(scene, eye, (cx, 0.0, cz + 0.05 * w), light)
+
+
+@_register(
+    "fuzzy",
+    "clusters of thin fur strands (bushes) over a ground: many tiny, dense casters",
+    {"triangles": Param(10_000, int, 1, 100_000_000, "fur strands (one triangle each)"),
+     "clusters": Param(6, int, 1, 100_000, "bushes"),
+     "seed": Param(0, int, 0, None, "random seed")},
+    _fuzzy_view)
+def _fuzzy(name: str, triangles: int, clusters: int, seed: int) -> Scene:
+    """Bushes of fur strands over a ground.
+
+    Bush centres are scattered over a square of side ``4.4 sqrt(clusters) + 2``; bush
+    radius R in [1.5, 2.4]. A strand is one thin triangle from a base near the bush
+    centre out to a tip at distance 0.35-1 R, in a random direction (never below the
+    ground). Strand width ``0.04 R sqrt(10^4 / triangles)`` keeps the total strand
+    area constant. Triangles: ``triangles + 2``; objects: ground + one per bush.
+    """
+    if clusters > triangles:
+        raise SceneError(f"{name}: parameter 'clusters' = {clusters} exceeds "
+                         f"'triangles' = {triangles}")
+    rng = np.random.default_rng(seed)
+    half = 2.2 * math.sqrt(clusters) + 1.0
+    xz = _scatter(rng, clusters, (-half, half), (-half, half))
+    radius = rng.uniform(1.5, 2.4, clusters)
+    centre = np.stack([xz[:, 0], 0.55 * radius, xz[:, 1]], 1)
+    owner = np.repeat(np.arange(clusters), np.diff(np.arange(clusters + 1) * triangles // clusters))
+    r = radius[owner, None]
+    d = _unit(rng.normal(size=(triangles, 3)))
+    d[:, 1] = np.where(d[:, 1] < -0.3, -d[:, 1], d[:, 1])         # keep tips above ground
+    base = centre[owner] + 0.2 * r * _unit(rng.normal(size=(triangles, 3))) \
+        * rng.random((triangles, 1)) ** (1 / 3)
+    tip = base + d * r * rng.uniform(0.35, 1.0, (triangles, 1))
+    side = _unit(np.cross(d, rng.normal(size=(triangles, 3))))
+    width = 0.04 * r * math.sqrt(1e4 / triangles)
+    corners = np.stack([base - 0.5 * width * side, base + 0.5 * width * side, tip], 1)
+    parts = _Parts()
+    g = 4 * half
+    _ground(parts, (-g, g), (-g, g))
+    parts.add_many([f"bush{c}" for c in range(clusters)], prim.triangle_soup(corners), owner)
+    return parts.scene(name)
+
+
+# --------------------------------------------------------------------------- terrain
+
+TERRAIN_EXTENT = 100.0      # world units per side, centred on the origin
+SUN_ELEVATION_DEG = 10.0
+SUN_AZIMUTH_DEG = 35.0      # measured from +x towards -z (the sun is to the right, behind)
+
+
+def _terrain_view(scene: Scene, params: dict) -> View:
+    el, az = math.radians(SUN_ELEVATION_DEG), math.radians(SUN_AZIMUTH_DEG)
+    to_sun = np.array([math.cos(el) * math.cos(az), math.sin(el), -math.cos(el) * math.sin(az)])
+    light = SphereLight(direction=-to_sun, angular_radius_deg=0.27)
+    e = TERRAIN_EXTENT
+    y1 = scene.bounds[1, 1]
+    return framed_view(scene, (0.0, 0.45 * e + y1, 0.62 * e), (0.0, 0.0, 0.0), light,
+                       fov_y_deg=50.0)
+
+
+@_register(
+    "terrain",
+    "a fractal height field (random Fourier modes, 5 octaves) under a low sun "
+    "(SphereLight, 10 degrees elevation, 0.27 degrees radius)",
+    {"size": Param(96, int, 2, 20_000, "grid vertices per side"),
+     "height": Param(14.0, float, 0.0, 1e4, "peak height, world units (100 x 100 extent)"),
+     "seed": Param(0, int, 0, None, "random seed")},
+    _terrain_view)
+def _terrain(name: str, size: int, height: float, seed: int) -> Scene:
+    """A height field over [-50, 50]^2 (one open object, normals up).
+
+    ``h = height * s^1.3`` with s the sum of 5 octaves (wavelengths 80 .. 5 units,
+    amplitude halving per octave) of 6 random plane waves each, rescaled to [0, 1]
+    over the grid samples; the surface does not depend on ``size`` apart from this
+    rescaling and its sampling. Triangles: ``2 (size - 1)^2``.
+    """
+    rng = np.random.default_rng(seed)
+    octaves, modes = 5, 6
+    e = TERRAIN_EXTENT
+    axis = np.linspace(-e / 2, e / 2, size)
+    zz, xx = np.meshgrid(axis, axis, indexing="ij")
+    h = np.zeros((size, size))
+    for o in range(octaves):
+        freq = 2 ** o / 80.0
+        angle = rng.uniform(0, 2 * np.pi, modes)
+        phase = rng.uniform(0, 2 * np.pi, modes)
+        for a, p in zip(angle, phase):
+            h += 0.5 ** o * np.cos(2 * np.pi * freq * (math.cos(a) * xx + math.sin(a) * zz) + p)
+    span = h.max() - h.min()
+    s = (h - h.min()) / span if span > 0 else np.zeros_like(h)
+    parts = _Parts()
+    parts.add("terrain", prim.height_grid(height * s ** 1.3, (-e / 2, e / 2), (-e / 2, e / 2)))
+    return parts.scene(name)
+
+
+# --------------------------------------------------------------------------- blobs
+
+BLOB_BOX = 10.0             # side of the cube the blobs live in, world units
+BLOB_LIFT = 0.6             # gap between the cube's bottom and the ground
+
+
+def _blobs_view(scene: Scene, params: dict) -> View:
+    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
+    w = 0.5 * max(x1 - x0, z1 - z0)
+    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    eye = (cx + 0.6 * w, y1 + 1.5 * w, cz + 2.8 * w)
+    light = PointLight((cx - 0.6 * w, y1 + 3.5 * w, cz - 0.2 * w))
+    return framed_view(scene, eye, (cx, 0.3 * y1, cz), light)
+
+
+@_register(
+    "blobs",
+    "organic closed surfaces: marching cubes of a sum of random Gaussian blobs, "
+    "above a ground",
+    {"grid": Param(32, int, 4, 2048, "voxels per side of the sampling grid"),
+     "blobs": Param(16, int, 1, 100_000, "Gaussian blobs in the field"),
+     "seed": Param(0, int, 0, None, "random seed")},
+    _blobs_view)
+def _blobs(name: str, grid: int, blobs: int, seed: int) -> Scene:
+    """Iso-surface 0.5 of ``sum_i exp(-|p - c_i|^2 / (2 s_i^2))`` over a 10-unit cube.
+
+    Centres c_i are uniform in the inner 70% of the cube, s_i in [0.05, 0.11] of its
+    side. The field is sampled on ``grid^3`` voxel centres and padded with zeros, so
+    every surface is closed (each connected component is one object, wound outward).
+    Triangles grow as ``grid^2`` (with the default blobs and seed: 5.1k at grid 32,
+    20.6k at 64, 82.5k at 128, 330k at 256).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from skimage.measure import marching_cubes
+
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform(0.15, 0.85, (blobs, 3))
+    sigma = rng.uniform(0.05, 0.11, blobs)
+    x = (np.arange(grid) + 0.5) / grid
+    field = np.zeros((grid, grid, grid))
+    for c, s in zip(centre, sigma):           # separable Gaussian: outer product per blob
+        g = [np.exp(-(x - ci) ** 2 / (2 * s * s)) for ci in c]
+        field += g[0][:, None, None] * g[1][None, :, None] * g[2][None, None, :]
+    vol = np.pad(field, 1)
+    if vol.max() <= 0.5:
+        raise SceneError(f"{name}: parameter 'grid' = {grid} is too coarse to resolve "
+                         "any blob")
+    verts, faces, _, _ = marching_cubes(vol, 0.5, allow_degenerate=False)
+    verts = (verts - 0.5) / grid                               # voxel centres -> [0, 1]
+    if prim.signed_volume(verts, faces) < 0:
+        faces = faces[:, ::-1]
+    n_comp, label = connected_components(
+        coo_matrix((np.ones(3 * len(faces)), (np.repeat(faces[:, 0], 3),
+                                              faces.reshape(-1))), shape=(len(verts),) * 2),
+        directed=False)
+    world = (verts - [0.5, 0.0, 0.5]) * BLOB_BOX + [0.0, BLOB_LIFT, 0.0]
+    parts = _Parts()
+    _ground(parts, (-5 * BLOB_BOX, 5 * BLOB_BOX), (-5 * BLOB_BOX, 5 * BLOB_BOX))
+    parts.add_many([f"blob{c}" for c in range(n_comp)], (world, faces), label[faces[:, 0]])
+    return parts.scene(name)
+
+
+# --------------------------------------------------------------------------- soup
+
+def _soup_view(scene: Scene, params: dict) -> View:
+    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
+    w = 0.5 * max(x1 - x0, z1 - z0)
+    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    eye = (cx, y1 + 1.2 * w, cz + 1.7 * w)
+    light = PointLight((cx + 0.7 * w, y1 + 2.0 * w, cz + 0.3 * w))
+    return framed_view(scene, eye, (cx, 0.0, cz - 0.05 * w), light)
+
+
+def _frames(rng: np.random.Generator, k: int, half: float, size=(0.4, 1.0)):
+    """Random placements: centres [k, 3] over the soup area (y in [0.3, 3.5]),
+    rotations [k, 3, 3] and sizes [k]."""
+    c = np.stack([rng.uniform(-half, half, k), rng.uniform(0.3, 3.5, k),
+                  rng.uniform(-half, half, k)], 1)
+    return c, prim.random_rotations(rng, k), rng.uniform(*size, k)
+
+
+def _place(local: np.ndarray, centre, rot, size) -> np.ndarray:
+    """World corners [k, v, 3] of local shapes [k, v, 3] (or [v, 3])."""
+    local = np.broadcast_to(local, (len(centre),) + np.shape(local)[-2:])
+    return centre[:, None] + size[:, None, None] * np.einsum("kij,kvj->kvi", rot, local)
+
+
+@_register(
+    "soup",
+    "robustness stress test: degenerate, coplanar overlapping, interpenetrating, "
+    "non-manifold, open and duplicated triangles over a ground",
+    {"count": Param(100, int, 1, 10_000_000, "instances of each defect kind"),
+     "seed": Param(0, int, 0, None, "random seed")},
+    _soup_view)
+def _soup(name: str, count: int, seed: int) -> Scene:
+    """Polygon soup with every defect the shadow methods must survive.
+
+    Each kind is one object holding ``count`` instances (c = count) scattered above
+    the ground over a square of side ``16 sqrt(c / 100)`` (sizes 0.4-1, centres at
+    heights 0.3-3.5, so a few instances also cut through the ground):
+
+    * ``degenerate`` (c triangles): repeated vertex (a, a, b), all three equal,
+      collinear (a, a + d, a + 2.5 d), cycling in that order.
+    * ``coplanar`` (2c): pairs overlapping in one plane; every 4th pair lies on the
+      ground plane y = 0 (coplanar with the ground too).
+    * ``interpenetrating`` (2c): pairs crossing each other's interior.
+    * ``nonmanifold`` (3c): three triangles sharing one edge (a "book").
+    * ``open`` (10c): boxes without a lid (4 open edges each).
+    * ``duplicated`` (2c): exact copies of a triangle; odd instances reversed.
+
+    Triangles: ``20 c + 2``.
+    """
+    rng = np.random.default_rng(seed)
+    c = count
+    half = 8.0 * math.sqrt(c / 100)
+    parts = _Parts()
+    _ground(parts, (-3 * half, 3 * half), (-3 * half, 3 * half))
+
+    # degenerate: zero-area triangles of three kinds
+    a, _, size = _frames(rng, c, half)
+    d = _unit(rng.normal(size=(c, 3))) * size[:, None]
+    kind = np.arange(c) % 3
+    b = np.where((kind == 1)[:, None], a, a + d)
+    third = np.where((kind == 2)[:, None], a + 2.5 * d, np.where((kind == 1)[:, None], a, b))
+    second = np.where((kind == 2)[:, None], a + d, a)
+    parts.add("degenerate", prim.triangle_soup(np.stack([a, second, third], 1)))
+
+    # coplanar: a triangle and a rotated, shifted copy in the same plane
+    tri = np.array([[0.0, 0.0, 0.8], [-0.7, 0.0, -0.4], [0.7, 0.0, -0.4]])   # in y = 0
+    centre, rot, size = _frames(rng, c, half)
+    ground = np.arange(c) % 4 == 0
+    rot[ground] = np.eye(3)
+    centre[ground, 1] = 0.0
+    ang = rng.uniform(0.3, 2.5, c)
+    spin = np.zeros((c, 3, 3))
+    spin[:, 0, 0] = spin[:, 2, 2] = np.cos(ang)
+    spin[:, 0, 2], spin[:, 2, 0] = np.sin(ang), -np.sin(ang)
+    spin[:, 1, 1] = 1.0
+    shift = np.stack([rng.uniform(-0.3, 0.3, c), np.zeros(c), rng.uniform(-0.3, 0.3, c)], 1)
+    second_local = np.einsum("kij,vj->kvi", spin, tri) + shift[:, None]
+    pairs = np.stack([_place(tri, centre, rot, size), _place(second_local, centre, rot, size)], 1)
+    parts.add("coplanar", prim.triangle_soup(pairs.reshape(-1, 3, 3)))
+
+    # interpenetrating: one triangle in the local xy plane, one in xz crossing it
+    pair = np.array([[[-1.0, -0.8, 0.0], [1.0, -0.8, 0.0], [0.0, 1.0, 0.0]],
+                     [[-0.5, 0.1, -1.0], [0.5, 0.1, -1.0], [0.0, 0.1, 1.0]]])
+    centre, rot, size = _frames(rng, c, half)
+    placed = _place(pair.reshape(-1, 3), centre, rot, size)
+    parts.add("interpenetrating", prim.triangle_soup(placed.reshape(-1, 3, 3)))
+
+    # non-manifold: three wings on the shared edge p = (0,-1,0), q = (0,1,0)
+    wing_angles = np.array([0.0, 2.1, 4.0])
+    wings = np.stack([np.cos(wing_angles), np.zeros(3), np.sin(wing_angles)], 1)
+    local = np.concatenate([[[0.0, -1.0, 0.0], [0.0, 1.0, 0.0]], wings])   # 5 vertices
+    centre, rot, size = _frames(rng, c, half)
+    verts = _place(local, centre, rot, size).reshape(-1, 3)
+    faces = (np.array([[0, 1, 2], [0, 1, 3], [1, 0, 4]])[None]
+             + 5 * np.arange(c)[:, None, None]).reshape(-1, 3)
+    parts.add("nonmanifold", (verts, faces.astype(np.int32)))
+
+    # open: unit boxes without their top (+y) faces
+    bv, bf = prim.box((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5))
+    bf = np.delete(bf, [6, 7], axis=0)
+    centre, rot, size = _frames(rng, c, half)
+    verts = _place(bv, centre, rot, size).reshape(-1, 3)
+    faces = (bf[None].astype(np.int64) + 8 * np.arange(c)[:, None, None]).reshape(-1, 3)
+    parts.add("open", (verts, faces.astype(np.int32)))
+
+    # duplicated: the same three vertices used twice (odd instances reversed)
+    centre, rot, size = _frames(rng, c, half)
+    verts = _place(tri, centre, rot, size).reshape(-1, 3)
+    base = 3 * np.arange(c)[:, None] + np.array([0, 1, 2])
+    dup = np.where((np.arange(c) % 2 == 1)[:, None], base[:, ::-1], base)
+    faces = np.stack([base, dup], 1).reshape(-1, 3)
+    parts.add("duplicated", (verts, faces.astype(np.int32)))
+    return parts.scene(name)
