@@ -4,8 +4,9 @@ The slow but simple oracle. Triangle setup builds the four planes of each shadow
 volume (``shadowlab.geometry.planes``); the test loops over triangles in unrolled
 chunks (``lax.fori_loop``) and is vectorized over all samples, so XLA fuses each
 chunk into one pass over the samples. A sample is shadowed when it is inside any
-volume: inside all three edge planes (inclusive) and more than the cap bias behind
-the cap.
+volume: inside all three edge planes (inclusive) and behind the cap by more than the
+bias (option ``bias``: ``"receiver"``, the reference's criterion, or ``"cap"``, the
+papers'; see ``common.bias_terms``).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from ..geometry.planes import shadow_volume_planes
 from ..scene.view import hard_light
 from ..timing import StageTimer
-from .common import bucket, cap_bias, precision_mode, view_samples
+from .common import BIAS_MODES, bias_terms, bucket, cap_bias, precision_mode, view_samples
 from .registry import Option, register
 from .result import ShadowResult
 
@@ -34,20 +35,24 @@ def setup(tri, light):
 @functools.lru_cache(maxsize=None)
 def _test_kernel(chunk: int):
     @jax.jit
-    def test(points, planes, valid, bias):
-        """bool [S]: points [S, 3] inside any of the volumes planes [T, 16] (T % chunk == 0)."""
+    def test(points, scale, planes, bound):
+        """bool [S]: points [S, 3] inside any volume of planes [T, 16] (T % chunk == 0).
+
+        ``scale`` [S] and ``bound`` [T] are the bias terms of ``common.bias_terms``;
+        invalid triangles have ``bound = -inf``.
+        """
         px, py, pz = points[:, 0], points[:, 1], points[:, 2]
 
         def body(i, shadow):
             blk = jax.lax.dynamic_slice_in_dim(planes, i * chunk, chunk)
-            ok = jax.lax.dynamic_slice_in_dim(valid, i * chunk, chunk)
+            lim = jax.lax.dynamic_slice_in_dim(bound, i * chunk, chunk)
             for j in range(chunk):
                 p = blk[j]
                 e0 = px * p[0] + py * p[1] + pz * p[2] + p[3]
                 e1 = px * p[4] + py * p[5] + pz * p[6] + p[7]
                 e2 = px * p[8] + py * p[9] + pz * p[10] + p[11]
                 cap = px * p[12] + py * p[13] + pz * p[14] + p[15]
-                shadow = shadow | ((e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap < -bias) & ok[j])
+                shadow = shadow | ((e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap * scale < lim[j]))
             return shadow
 
         return jax.lax.fori_loop(0, planes.shape[0] // chunk, body,
@@ -57,8 +62,12 @@ def _test_kernel(chunk: int):
 
 @register("brute_force", doc="every view sample against every triangle's shadow volume "
           "(the exact oracle)", paper="DESIGN.md (oracle)",
-          options={"chunk": Option(16, "triangles per unrolled loop step", allowed=(4, 8, 16, 32))})
-def brute_force(scene, gbuf, light, *, precision, shadow_eps, chunk):
+          options={"chunk": Option(16, "triangles per unrolled loop step", allowed=(4, 8, 16, 32)),
+                   "bias": Option("receiver", "self-shadowing bias: 'receiver' = eps above the "
+                                  "receiver's tangent plane (as the reference), 'cap' = eps "
+                                  "behind the caster's plane (as the papers)",
+                                  allowed=BIAS_MODES)})
+def brute_force(scene, gbuf, light, *, precision, shadow_eps, chunk, bias):
     timer = StageTimer()
     with timer.stage("samples"):
         samples = view_samples(gbuf, light)
@@ -68,12 +77,18 @@ def brute_force(scene, gbuf, light, *, precision, shadow_eps, chunk):
         tri[: scene.num_triangles] = scene.triangles
         light_h = hard_light(light).homogeneous.astype(dtype)
         planes, valid = timer.run("setup", setup, jnp.asarray(tri), jnp.asarray(light_h))
-        valid = valid.at[scene.num_triangles:].set(False)
-        points = jnp.asarray(samples.padded_position(dtype))
-        bias = jnp.asarray(cap_bias(scene, shadow_eps), dtype=dtype)
-        shadow = timer.run("test", _test_kernel(chunk), points, planes, valid, bias)
+        with timer.stage("bias"):
+            valid = np.array(valid)
+            valid[scene.num_triangles:] = False
+            scale, bound = bias_terms(samples, hard_light(light).homogeneous,
+                                      np.asarray(planes).reshape(-1, 4, 4),
+                                      cap_bias(scene, shadow_eps), bias)
+            bound = np.where(valid, bound, -np.inf).astype(dtype)
+            points = jnp.asarray(samples.padded_position(dtype))
+            scale = jnp.asarray(samples.padded(scale, dtype))
+        shadow = timer.run("test", _test_kernel(chunk), points, scale, planes, jnp.asarray(bound))
     shadow = np.asarray(shadow)[: samples.count]
-    casters = int(np.asarray(valid).sum())
+    casters = int(valid.sum())
     lit_values = ~shadow
     lit = samples.scatter(lit_values, fill=False)
     counters = {
@@ -87,4 +102,5 @@ def brute_force(scene, gbuf, light, *, precision, shadow_eps, chunk):
     }
     timings = dict(timer.times, total=timer.total)
     return ShadowResult(lit, counters, timings, "brute_force",
-                        {"precision": precision, "shadow_eps": shadow_eps, "chunk": chunk})
+                        {"precision": precision, "shadow_eps": shadow_eps, "chunk": chunk,
+                         "bias": bias})

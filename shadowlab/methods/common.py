@@ -35,11 +35,13 @@ class Samples:
     Attributes:
         index: int64 [S], flat pixel indices of valid, light-facing pixels.
         position: float64 [S, 3], world positions.
+        normal: float64 [S, 3], unit geometric normals (facing camera and light).
         shape: (H, W) of the image.
     """
 
     index: np.ndarray
     position: np.ndarray
+    normal: np.ndarray
     shape: tuple[int, int]
 
     @property
@@ -51,6 +53,13 @@ class Samples:
         cap = capacity or bucket(self.count)
         out = np.zeros((cap, 3), dtype=dtype)
         out[: self.count] = self.position
+        return out
+
+    def padded(self, values: np.ndarray, dtype, capacity: int | None = None) -> np.ndarray:
+        """``values`` [count, ...] zero-padded to [capacity, ...] in ``dtype``."""
+        cap = capacity or bucket(self.count)
+        out = np.zeros((cap,) + values.shape[1:], dtype=dtype)
+        out[: self.count] = values
         return out
 
     def scatter(self, values: np.ndarray, fill=0) -> np.ndarray:
@@ -65,9 +74,41 @@ def view_samples(gbuf: GBuffer, light: Light) -> Samples:
     """Valid pixels whose camera-facing normal faces the light (all others are unlit)."""
     facing = light_facing(gbuf, hard_light(light))
     idx = np.flatnonzero(facing)
-    return Samples(idx, gbuf.position.reshape(-1, 3)[idx], gbuf.valid.shape)
+    return Samples(idx, gbuf.position.reshape(-1, 3)[idx], gbuf.normal.reshape(-1, 3)[idx],
+                   gbuf.valid.shape)
+
+
+BIAS_MODES = ("receiver", "cap")
+
+
+def bias_terms(samples: Samples, light_h: np.ndarray, planes: np.ndarray, eps: float,
+               mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sample scale [S] and per-triangle bound [T] for the self-shadowing bias.
+
+    A sample p behind a caster's cap (``cap(p) < 0``) is shadowed when
+    ``cap(p) * scale[p] < bound[t]``:
+
+    - ``mode="receiver"``: the segment from p to the light must cross the caster more
+      than ``eps`` above p's tangent plane, the same criterion the Embree reference
+      uses (see ``shadowlab.raycast``). With a = n . (L.xyz - L.w p) and
+      capL = cap(L) (homogeneous), the crossing height exceeds eps when
+      ``-cap(p) * a > eps * (capL - L.w * cap(p))``, i.e.
+      ``cap(p) * (a - eps * L.w) < -eps * capL``.
+    - ``mode="cap"``: the papers' bias, p more than ``eps`` behind the caster's plane:
+      ``cap(p) * 1 < -eps``.
+
+    Args:
+        light_h: float64 [4] homogeneous light; planes: [T, 4, 4] (row 3 the cap).
+    """
+    if mode == "cap":
+        return np.ones(samples.count), np.full(planes.shape[0], -eps)
+    to_light = light_h[:3] - light_h[3] * samples.position
+    a = np.einsum("ij,ij->i", samples.normal, to_light)
+    cap = np.asarray(planes[:, 3], dtype=np.float64)
+    cap_at_light = cap[:, :3] @ light_h[:3] + light_h[3] * cap[:, 3]
+    return a - eps * light_h[3], -eps * cap_at_light
 
 
 def cap_bias(scene: Scene, shadow_eps: float) -> float:
-    """The cap-plane bias in world units (same offset as the Embree reference)."""
+    """The bias ``eps`` in world units (same offset as the Embree reference)."""
     return shadow_epsilon(scene, shadow_eps)

@@ -1,0 +1,117 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+# ---
+
+# %% [markdown]
+# # `brute_force` against the exact Embree reference
+#
+# For each scene: the reference lit mask, the error map of `brute_force` (red: lit
+# but should be shadowed, blue: shadowed but should be lit) and the run time of both,
+# warm, median of repeats; the compile time of `brute_force` is kept apart.
+# `shadowlab figures --only brute_force_error` regenerates `figures/brute_force_error.*`.
+
+# %%
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+import shadowlab as sl
+from shadowlab.analysis.metrics import compare_hard, error_map
+from shadowlab.scene.procedural import default_view
+
+
+def run(cfg: dict) -> dict:
+    """Arrays per scene s: reference and error maps [S, H, W], times [S] (seconds)."""
+    names = list(cfg["scenes"])
+    res = tuple(cfg["resolution"])
+    repeats = int(cfg.get("repeats", 3))
+    out = {k: [] for k in ("reference", "valid", "error", "mismatches", "valid_pixels",
+                           "triangles", "reference_seconds", "method_seconds",
+                           "compile_seconds", "tests")}
+    for name in names:
+        params = dict(cfg.get("params", {}).get(name, {}))
+        scene = sl.load_scene(name, **params)
+        view = default_view(name, scene, **params)
+        camera = view.camera.replace(resolution=res)
+        gbuf = sl.render_gbuffer(scene, camera)
+        ref_times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            truth = sl.reference_shadows(scene, gbuf, view.light)
+            ref_times.append(time.perf_counter() - t0)
+        opts = {"precision": cfg.get("precision", "float32")}
+        cold = sl.compute_shadows(scene, gbuf, view.light, method="brute_force", **opts)
+        runs = [sl.compute_shadows(scene, gbuf, view.light, method="brute_force", **opts)
+                for _ in range(repeats)]
+        lit = runs[-1].lit
+        stats = compare_hard(lit, truth, gbuf.valid)
+        out["reference"].append(truth)
+        out["valid"].append(gbuf.valid)
+        out["error"].append(error_map(lit, truth, gbuf.valid))
+        out["mismatches"].append(stats["mismatches"])
+        out["valid_pixels"].append(stats["valid_pixels"])
+        out["triangles"].append(scene.num_triangles)
+        out["reference_seconds"].append(statistics.median(ref_times))
+        out["method_seconds"].append(statistics.median(r.timings["total"] for r in runs))
+        out["compile_seconds"].append(sum(v for k, v in cold.timings.items()
+                                          if k.endswith("_compile")))
+        out["tests"].append(runs[-1].counters["tests"])
+    arrays = {k: np.asarray(v) for k, v in out.items()}
+    arrays["scenes"] = np.asarray(names)
+    return arrays
+
+
+def plot(arrays: dict):
+    import matplotlib.pyplot as plt
+
+    from shadowlab.analysis.plots import ERROR_COLORS, shade
+
+    n = len(arrays["scenes"])
+    fig, axes = plt.subplots(n, 3, figsize=(10, 3.2 * n), constrained_layout=True,
+                             squeeze=False)
+    for i, name in enumerate(arrays["scenes"]):
+        valid = arrays["valid"][i]
+        axes[i, 0].imshow(shade(arrays["reference"][i], valid), cmap="gray", vmin=0, vmax=1)
+        axes[i, 0].set_title(f"{name}: reference ({arrays['triangles'][i]} tris)", fontsize=9)
+        axes[i, 1].imshow(arrays["error"][i], cmap=ERROR_COLORS, vmin=-1, vmax=1,
+                          interpolation="nearest")
+        axes[i, 1].set_title(f"brute_force error: {arrays['mismatches'][i]} of "
+                             f"{arrays['valid_pixels'][i]} px", fontsize=9)
+        for ax in axes[i, :2]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+        times = [arrays["reference_seconds"][i], arrays["method_seconds"][i]]
+        axes[i, 2].barh(["Embree", "brute_force"], [1000 * t for t in times],
+                        color=["#777777", "#d08c2b"])
+        axes[i, 2].set_xlabel("ms (warm, median)")
+        axes[i, 2].set_title(f"{arrays['tests'][i] / 1e6:.0f} M tests, compile "
+                             f"{arrays['compile_seconds'][i]:.2f} s", fontsize=9)
+    return fig
+
+
+def check(arrays: dict, cfg: dict) -> None:
+    """The oracle equals the reference up to the documented boundary tolerance."""
+    tol = float(cfg.get("max_mismatch_fraction", 0.0))
+    frac = arrays["mismatches"] / np.maximum(arrays["valid_pixels"], 1)
+    assert np.all(frac <= tol), dict(zip(arrays["scenes"], frac))
+    assert np.array_equal((arrays["error"] != 0).sum(axis=(1, 2)), arrays["mismatches"])
+    assert np.all(arrays["valid_pixels"] > 0)
+
+
+# %%
+if __name__ == "__main__":
+    import tomllib
+    from pathlib import Path
+
+    config = tomllib.loads((Path(__file__).parent.parent / "configs" / "experiments"
+                            / "brute_force_error.ci.toml").read_text())
+    result = run(config)
+    check(result, config)
+    plot(result)

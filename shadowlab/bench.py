@@ -1,0 +1,110 @@
+"""``shadowlab bench``: run time against error, measured against Embree in the same run.
+
+For each case (a scene, a view, a set of methods) it renders the G-buffer once, times
+the Embree shadow-ray pass ``repeats`` times, then runs each method once cold (its
+compile time is reported apart) and ``repeats`` times warm, and reports median
+per-stage run times, the ratio of the method's median total to Embree's median, and
+the method's error against the reference. Results are saved as JSON for plots.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+from . import io
+from .analysis import compare_hard
+from .methods import compute_shadows, get
+from .raycast import reference_shadows, render_gbuffer
+
+
+def default_cases(size: str = "full") -> list[dict]:
+    """The built-in cases (``shadowlab/configs/bench.toml``): [{name, overrides}]."""
+    text = resources.files("shadowlab").joinpath("configs/bench.toml").read_text()
+    table = tomllib.loads(text)
+    return table[size]["case"]
+
+
+def _median_stage_times(runs: list[dict]) -> dict:
+    keys = [k for k in runs[0] if not k.endswith("_compile")]
+    return {k: statistics.median(r[k] for r in runs) for k in keys}
+
+
+def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
+    """Benchmark the first frame of ``config`` (a RunConfig); returns a JSON-able dict."""
+    from tqdm import tqdm
+
+    scene = config.build_scene()
+    view = config.views(scene)[0]
+    gbuf = render_gbuffer(scene, view.camera)
+    eps = config.reference.shadow_eps
+    ref_times = []
+    truth = None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        truth = reference_shadows(scene, gbuf, view.light, shadow_eps=eps)
+        ref_times.append(time.perf_counter() - t0)
+    ref_median = statistics.median(ref_times)
+    out = {"scene": scene.name, "triangles": scene.num_triangles,
+           "resolution": list(view.camera.resolution), "valid_pixels": int(gbuf.valid.sum()),
+           "reference": {"median_seconds": ref_median, "runs": ref_times,
+                         "rays_per_second": int(truth.size and (gbuf.valid.sum() / ref_median))},
+           "methods": {}}
+    for name in config.methods.names:
+        if get(name).soft:
+            continue  # soft methods are benchmarked against the soft reference by their issue
+        opts = dict(config.methods.options.get(name, {}))
+        opts.setdefault("shadow_eps", eps)
+        cold = compute_shadows(scene, gbuf, view.light, method=name, **opts)
+        compile_s = {k: v for k, v in cold.timings.items() if k.endswith("_compile")}
+        runs = []
+        result = cold
+        for _ in tqdm(range(repeats), desc=f"{name}", leave=False, disable=not progress):
+            result = compute_shadows(scene, gbuf, view.light, method=name, **opts)
+            runs.append(result.timings)
+        stages = _median_stage_times(runs)
+        counters = result.scalar_counters()
+        row = {"stages": stages, "compile": compile_s,
+               "compile_seconds": sum(compile_s.values()),
+               "median_seconds": stages["total"],
+               "ratio_to_reference": stages["total"] / ref_median if ref_median > 0 else None,
+               "error": compare_hard(result.lit, truth, gbuf.valid),
+               "counters": counters}
+        if "tests" in counters and stages["total"] > 0:
+            row["tests_per_second"] = counters["tests"] / stages["total"]
+        out["methods"][name] = row
+    return out
+
+
+def run_bench(configs: list, repeats: int = 5, out: str | Path | None = None,
+              progress: bool = True) -> dict:
+    """Benchmark every config; write ``out`` (JSON) if given."""
+    results = {"provenance": io.provenance(), "repeats": repeats, "cases": []}
+    for config in configs:
+        results["cases"].append(bench_case(config, repeats, progress))
+    if out:
+        io.write_json(out, results)
+    return results
+
+
+def format_bench(results: dict) -> str:
+    lines = []
+    for case in results["cases"]:
+        w, h = case["resolution"]
+        ref = case["reference"]["median_seconds"]
+        lines.append(f"{case['scene']}  {case['triangles']} triangles  {w}x{h}  "
+                     f"Embree shadow rays: {1000 * ref:.1f} ms (median of {results['repeats']})")
+        lines.append(f"  {'method':<16} {'run ms':>9} {'compile s':>9} {'x Embree':>9} "
+                     f"{'mismatch':>9} {'Gtests/s':>9}  stages (ms)")
+        for name, m in case["methods"].items():
+            stages = ", ".join(f"{k} {1000 * v:.1f}" for k, v in m["stages"].items()
+                               if k != "total")
+            rate = m.get("tests_per_second")
+            lines.append(f"  {name:<16} {1000 * m['median_seconds']:>9.1f} "
+                         f"{m['compile_seconds']:>9.2f} {m['ratio_to_reference']:>9.2f} "
+                         f"{m['error']['mismatches']:>9} "
+                         f"{'-' if rate is None else f'{rate / 1e9:.2f}':>9}  {stages}")
+    return "\n".join(lines)

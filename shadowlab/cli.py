@@ -1,0 +1,124 @@
+"""The ``shadowlab`` command: run | methods | scenes | bench | figures."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _common_config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", nargs="?", help="a TOML config (default: the built-in default)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config key, e.g. --set camera.resolution=[256,256] "
+                        "(repeatable)")
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="shadowlab", description=__doc__)
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run methods on a scene and compare with the reference")
+    _common_config_args(run)
+    run.add_argument("--out", help="output folder (default: the config's output.dir)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    sub.add_parser("methods", help="list methods and their options")
+    sub.add_parser("scenes", help="list procedural scenes and their parameters")
+
+    bench = sub.add_parser("bench", help="time methods against the Embree reference")
+    _common_config_args(bench)
+    bench.add_argument("--size", choices=("ci", "full"), default="full",
+                       help="built-in case sizes when no config is given (default: full)")
+    bench.add_argument("--repeats", type=int, default=5, help="warm runs per method (median)")
+    bench.add_argument("--out", default="bench.json", help="JSON results (default: bench.json)")
+    bench.add_argument("--quiet", action="store_true")
+
+    figures = sub.add_parser("figures", help="regenerate the figures of experiments/")
+    figures.add_argument("--size", choices=("ci", "full"), default="ci")
+    figures.add_argument("--only", action="append", default=[], metavar="NAME",
+                         help="only this experiment (repeatable)")
+    figures.add_argument("--root", default=".", help="repository root (default: .)")
+    figures.add_argument("--quiet", action="store_true")
+    return ap
+
+
+def _cmd_run(args) -> int:
+    from .config import load_config
+    from .pipeline import format_table, run
+
+    config = load_config(args.config, args.overrides)
+    out = run(config, out_dir=args.out, progress=not args.quiet)
+    print(format_table(out.metrics))
+    for path in out.files:
+        print(f"wrote {path}")
+    return 0
+
+
+def _cmd_methods(args) -> int:
+    from .methods import available
+
+    for name, info in available().items():
+        kind = "soft" if info["soft"] else ("exact" if info["exact"] else "approximate")
+        print(f"{name}  [{kind}]  {info['doc']}")
+        for opt, spec in info["options"].items():
+            print(f"    {opt} = {spec['default']!r}  ({spec['allowed']})  {spec['doc']}")
+    return 0
+
+
+def _cmd_scenes(args) -> int:
+    from .scene.procedural import GENERATORS
+
+    for name, gen in GENERATORS.items():
+        print(f"{name}  {gen.doc}")
+        print("    " + ", ".join(f"{k}={v!r}" for k, v in gen.defaults.items()))
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    from .bench import default_cases, format_bench, run_bench
+    from .config import load_config
+
+    if args.config:
+        configs = [load_config(args.config, args.overrides)]
+    else:
+        configs = [load_config(None, list(case["overrides"]) + args.overrides)
+                   for case in default_cases(args.size)]
+    results = run_bench(configs, repeats=args.repeats, out=args.out, progress=not args.quiet)
+    print(format_bench(results))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _cmd_figures(args) -> int:
+    from .figures import regenerate
+
+    failures = regenerate(Path(args.root), size=args.size, only=args.only,
+                          progress=not args.quiet)
+    return 1 if failures else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .config import ConfigError
+    from .figures import ExperimentError
+    from .jaxcache import enable_compilation_cache
+    from .methods import MethodError
+    from .scene import SceneError
+
+    args = _parser().parse_args(argv)
+    enable_compilation_cache()
+    handlers = {"run": _cmd_run, "methods": _cmd_methods, "scenes": _cmd_scenes,
+                "bench": _cmd_bench, "figures": _cmd_figures}
+    try:
+        return handlers[args.command](args)
+    except (ConfigError, ExperimentError, MethodError, SceneError) as exc:
+        print(f"shadowlab: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("shadowlab: interrupted; no output file was left half-written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+

@@ -1,0 +1,100 @@
+"""``shadowlab figures``: regenerate every experiment's figure and check its arrays.
+
+An experiment is a module ``experiments/<name>.py`` (a jupytext percent script, so it
+opens as a notebook) with
+
+- ``run(cfg: dict) -> dict[str, np.ndarray]``: compute the arrays behind the figure;
+- ``plot(arrays) -> matplotlib.figure.Figure``;
+- ``check(arrays, cfg) -> None`` (optional): raise AssertionError if the arrays
+  contradict what the figure is meant to show;
+
+and configs ``configs/experiments/<name>.ci.toml`` and ``<name>.full.toml``. Outputs go to
+``figures/<name>.png``, ``figures/<name>.npz`` (the arrays) and ``figures/<name>.json``
+(config, provenance, run seconds), each written atomically.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+import time
+import tomllib
+import traceback
+from pathlib import Path
+
+from . import io
+
+
+class ExperimentError(ValueError):
+    pass
+
+
+def discover(root: Path) -> dict[str, Path]:
+    folder = root / "experiments"
+    if not folder.is_dir():
+        raise ExperimentError(f"{folder}: no experiments folder; run from the repository root "
+                              "or pass --root")
+    return {p.stem: p for p in sorted(folder.glob("*.py")) if not p.stem.startswith("_")}
+
+
+def load_module(path: Path):
+    spec = importlib.util.spec_from_file_location(f"shadowlab_experiment_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    for attr in ("run", "plot"):
+        if not callable(getattr(module, attr, None)):
+            raise ExperimentError(f"{path}: an experiment needs a function {attr}()")
+    return module
+
+
+def load_experiment_config(root: Path, name: str, size: str) -> dict:
+    path = root / "configs" / "experiments" / f"{name}.{size}.toml"
+    if not path.exists():
+        raise ExperimentError(f"{path}: no such experiment config (sizes: ci, full)")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ExperimentError(f"{path}: {exc}") from exc
+
+
+def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = None) -> dict:
+    """Run one experiment, write its figure, arrays and metadata; return the arrays."""
+    module = load_module(discover(root)[name])
+    cfg = load_experiment_config(root, name, size)
+    t0 = time.perf_counter()
+    arrays = module.run(cfg)
+    seconds = time.perf_counter() - t0
+    out = out or root / "figures"
+    fig = module.plot(arrays)
+    io.write_npz(out / f"{name}.npz", arrays)
+    io.save_figure(fig, out / f"{name}.png")
+    io.write_json(out / f"{name}.json", {"experiment": name, "size": size, "config": cfg,
+                                         "run_seconds": seconds,
+                                         "provenance": io.provenance()})
+    if hasattr(module, "check"):
+        module.check(arrays, cfg)
+    return arrays
+
+
+def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
+               progress: bool = True) -> list[str]:
+    """Run every experiment (or ``only`` those); return the names that failed."""
+    found = discover(root)
+    names = only or list(found)
+    unknown = sorted(set(names) - set(found))
+    if unknown:
+        raise ExperimentError(f"unknown experiment(s) {', '.join(unknown)}; "
+                              f"available: {', '.join(found)}")
+    failures = []
+    for name in names:
+        t0 = time.perf_counter()
+        try:
+            run_experiment(root, name, size)
+            status = "ok"
+        except Exception:
+            traceback.print_exc()
+            failures.append(name)
+            status = "FAILED"
+        if progress:
+            print(f"{name:<32} {status:<7} {time.perf_counter() - t0:7.1f} s", file=sys.stderr)
+    return failures

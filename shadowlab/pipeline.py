@@ -1,0 +1,168 @@
+"""``shadowlab run``: scene -> frames -> G-buffer -> reference and methods -> outputs.
+
+For every frame of the configured view or animation it renders the G-buffer with
+Embree, computes the exact reference (timed: it is the bar every method is measured
+against), runs every configured method, and compares each with the reference on
+valid pixels. Outputs (all written atomically, and only once the run has finished):
+
+- ``metrics.json``: the resolved config, provenance, per-frame and summary metrics;
+- ``shadows.npz``: reference and method masks [F, H, W], valid masks, counter maps;
+- ``figures/``: reference vs method vs error map, and per-pixel counter heat maps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import io
+from .analysis import compare_hard, compare_soft
+from .methods import compute_shadows, get
+from .raycast import reference_shadows, render_gbuffer, soft_reference
+
+
+@dataclasses.dataclass
+class RunOutput:
+    """What a run produced: the metrics dict, the arrays, and the files written."""
+
+    metrics: dict
+    arrays: dict
+    files: list
+
+
+def _method_summary(frames: list[dict], name: str) -> dict:
+    rows = [f["methods"][name] for f in frames]
+    times = [r["timings"]["total"] for r in rows]
+    ratios = [r["timings"]["total"] / f["reference_seconds"] for r, f in zip(rows, frames)
+              if f["reference_seconds"] > 0]
+    out = {"frames": len(rows), "median_seconds": float(np.median(times)),
+           "compile_seconds": float(sum(v for r in rows for k, v in r["timings"].items()
+                                        if k.endswith("_compile"))),
+           "median_ratio_to_reference": float(np.median(ratios)) if ratios else None}
+    if "mismatches" in rows[0]["error"]:
+        out["mismatches"] = int(sum(r["error"]["mismatches"] for r in rows))
+        out["max_mismatch_fraction"] = float(max(r["error"]["mismatch_fraction"] for r in rows))
+    else:
+        out["mae"] = float(np.mean([r["error"]["mae"] for r in rows]))
+        out["max_error"] = float(max(r["error"]["max_error"] for r in rows))
+    if "tests" in rows[0]["counters"]:
+        out["tests"] = int(sum(r["counters"]["tests"] for r in rows))
+    return out
+
+
+def run(config, out_dir: str | Path | None = None, progress: bool = True,
+        write: bool = True) -> RunOutput:
+    """Run ``config`` (a ``shadowlab.config.RunConfig``); write outputs to ``out_dir``
+    (default ``config.output.dir``) unless ``write`` is False."""
+    from tqdm import tqdm
+
+    scene = config.build_scene()
+    views = config.views(scene)
+    methods = list(config.methods.names)
+    for name in methods:
+        get(name)  # fail fast on an unknown name, before any work
+    ref_cfg = config.reference
+    frames: list[dict] = []
+    arrays: dict[str, list] = {"valid": [], "reference": []}
+    soft_truth_cache = {}
+    bar = tqdm(views, desc=f"{scene.name}", unit="frame", disable=not progress)
+    for index, view in enumerate(bar):
+        gbuf = render_gbuffer(scene, view.camera)
+        t0 = time.perf_counter()
+        truth = reference_shadows(scene, gbuf, view.light, shadow_eps=ref_cfg.shadow_eps)
+        ref_seconds = time.perf_counter() - t0
+        arrays["valid"].append(gbuf.valid)
+        arrays["reference"].append(truth)
+        frame = {"frame": index, "valid_pixels": int(gbuf.valid.sum()),
+                 "reference_lit": int(truth.sum()), "reference_seconds": ref_seconds,
+                 "methods": {}}
+        for name in methods:
+            bar.set_postfix_str(name)
+            opts = dict(config.methods.options.get(name, {}))
+            opts.setdefault("shadow_eps", ref_cfg.shadow_eps)
+            res = compute_shadows(scene, gbuf, view.light, method=name, **opts)
+            if get(name).soft:
+                if index not in soft_truth_cache:
+                    soft_truth_cache[index] = soft_reference(
+                        scene, gbuf, view.light, rays_per_pixel=ref_cfg.soft_rays,
+                        seed=ref_cfg.seed, shadow_eps=ref_cfg.shadow_eps)
+                error = compare_soft(res.lit, soft_truth_cache[index], gbuf.valid)
+            else:
+                error = compare_hard(res.lit, truth, gbuf.valid)
+            frame["methods"][name] = {"error": error, "counters": res.scalar_counters(),
+                                      "timings": res.timings, "options": res.options}
+            arrays.setdefault(f"{name}/lit", []).append(res.lit)
+            for key, value in res.counter_maps().items():
+                arrays.setdefault(f"{name}/{key}", []).append(value)
+        frames.append(frame)
+    bar.close()
+    stacked = {k: np.stack(v) for k, v in arrays.items()}
+    for index, truth in soft_truth_cache.items():
+        stacked.setdefault("soft_reference", np.zeros(stacked["valid"].shape))[index] = truth
+    metrics = {
+        "config": config.to_dict(),
+        "provenance": io.provenance(),
+        "scene": {"name": scene.name, "report": dataclasses.asdict(scene.report())},
+        "frames": frames,
+        "summary": {name: _method_summary(frames, name) for name in methods},
+    }
+    files = []
+    if write:
+        out = Path(out_dir or config.output.dir)
+        files += [io.write_json(out / "metrics.json", metrics),
+                  io.write_npz(out / "shadows.npz", stacked)]
+        if config.output.figures:
+            files += _figures(stacked, methods, out / "figures")
+    return RunOutput(metrics, stacked, files)
+
+
+def _figures(arrays: dict, methods: list[str], folder: Path) -> list[Path]:
+    from .analysis import plots
+
+    files = []
+    valid = arrays["valid"]
+    # The frame with the most reference mismatches summed over methods, else frame 0.
+    for name in methods:
+        lit = arrays[f"{name}/lit"]
+        if lit.dtype == bool:
+            errs = [(lit[i] != arrays["reference"][i])[valid[i]].sum() for i in range(len(lit))]
+            f = int(np.argmax(errs)) if max(errs) > 0 else 0
+            fig = plots.lit_and_error(lit[f], arrays["reference"][f], valid[f],
+                                      title=f"{name} (frame {f})")
+        else:
+            f = 0
+            fig = plots.heat_map(lit[f], valid[f], f"{name} visibility (frame {f})", "visibility")
+        files.append(io.save_figure(fig, folder / f"{name}_lit.png"))
+        for key in arrays:
+            if key.startswith(name + "/") and key.endswith("_per_pixel"):
+                counter = key.split("/", 1)[1]
+                fig = plots.heat_map(arrays[key][f], valid[f], f"{name}: {counter} (frame {f})",
+                                     counter)
+                files.append(io.save_figure(fig, folder / f"{name}_{counter}.png"))
+    return files
+
+
+def format_table(metrics: dict) -> str:
+    """The summary as a plain-text table."""
+    head = (f"{'method':<16} {'frames':>6} {'mismatches':>10} {'max mism.%':>10} "
+            f"{'median s':>9} {'compile s':>9} {'x Embree':>9} {'tests':>14}")
+    lines = [head, "-" * len(head)]
+    ref = np.median([f["reference_seconds"] for f in metrics["frames"]])
+    lines.append(f"{'reference':<16} {len(metrics['frames']):>6} {0:>10} {0.0:>10.4f} "
+                 f"{ref:>9.4f} {0.0:>9.3f} {1.0:>9.2f} {'-':>14}")
+    for name, s in metrics["summary"].items():
+        mism = s.get("mismatches", "-")
+        frac = f"{100 * s['max_mismatch_fraction']:.4f}" if "max_mismatch_fraction" in s \
+            else f"mae {s.get('mae', 0):.3f}"
+        ratio = s["median_ratio_to_reference"]
+        lines.append(f"{name:<16} {s['frames']:>6} {mism:>10} {frac:>10} "
+                     f"{s['median_seconds']:>9.4f} {s['compile_seconds']:>9.3f} "
+                     f"{ratio if ratio is None else round(ratio, 2):>9} "
+                     f"{s.get('tests', '-'):>14}")
+    return "\n".join(lines)
+
+
+__all__ = ["RunOutput", "format_table", "run"]
