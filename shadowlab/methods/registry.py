@@ -151,6 +151,12 @@ def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
     return result
 
 
+# Modules under shadowlab.methods whose import registers their methods.
+BUILTIN_MODULES: tuple[str, ...] = ("brute_force",)
+
+
 def _load_builtin():
-    # Importing the method modules registers them.
-    from . import brute_force  # noqa: F401
+    import importlib
+
+    for module in BUILTIN_MODULES:
+        importlib.import_module(f"{__package__}.{module}")
