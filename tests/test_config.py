@@ -91,10 +91,15 @@ def test_example_configs_load(path, tmp_path):
     data = tomllib.loads(path.read_text())
     source = data.get("scene", {}).get("source", "gate")
     if source not in procedural.GENERATORS:
-        # A mesh example: copy it next to a mesh at the path it names.
+        # A mesh example: copy it, and the mesh it names, to a fresh folder.
         (tmp_path / "configs").mkdir()
+        shipped = path.parent / source
         path = Path(shutil.copy(path, tmp_path / "configs" / path.name))
-        write(path.parent / source, OBJ)
+        (path.parent / source).parent.mkdir(parents=True, exist_ok=True)
+        if shipped.exists():
+            shutil.copy(shipped, path.parent / source)
+        else:
+            write(path.parent / source, OBJ)
     cfg = load_config(path, ["camera.resolution=[16, 16]"])
     assert cfg.source == str(path)
     views = cfg.views()

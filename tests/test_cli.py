@@ -1,0 +1,129 @@
+"""The command line: run, methods, scenes, bench, errors, atomic outputs."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+import shadowlab as sl
+from shadowlab.cli import main
+
+SMALL = ["--set", "camera.resolution=[40,32]", "--set", 'methods.names=["brute_force"]']
+
+
+def test_run_default_writes_outputs(tmp_path, capsys):
+    assert main(["run", *SMALL, "--out", str(tmp_path), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "brute_force" in out and "x Embree" in out
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["config"]["scene"]["source"] == "gate"
+    assert metrics["summary"]["brute_force"]["mismatches"] == 0
+    arrays = np.load(tmp_path / "shadows.npz")
+    assert arrays["reference"].shape == (1, 32, 40)
+    assert np.array_equal(arrays["brute_force/lit"], arrays["reference"])
+    assert (tmp_path / "figures" / "brute_force_lit.png").stat().st_size > 0
+    assert not list(tmp_path.glob(".*"))       # no temporary files left behind
+
+
+def _independent_lit(mesh: trimesh.Trimesh, gbuf, light_pos):
+    """Lit mask from trimesh's own Embree ray queries: the first surface a ray from the
+    light meets on its way to the sample must be the sample itself."""
+    idx = np.flatnonzero(gbuf.valid)
+    p = gbuf.position.reshape(-1, 3)[idx]
+    n = gbuf.normal.reshape(-1, 3)[idx]
+    to_light = light_pos - p
+    facing = np.einsum("ij,ij->i", n, to_light) > 0
+    dirs = -to_light / np.linalg.norm(to_light, axis=1, keepdims=True)
+    origins = np.broadcast_to(light_pos, p.shape)
+    tri, ray, loc = mesh.ray.intersects_id(origins, dirs, multiple_hits=False,
+                                           return_locations=True)
+    first = np.full(len(p), np.inf)
+    first[ray] = np.linalg.norm(loc - light_pos, axis=1)
+    reach = np.linalg.norm(to_light, axis=1)
+    lit = np.zeros(gbuf.valid.size, bool)
+    lit[idx] = facing & (first >= reach - 1e-4 * mesh.scale)
+    return lit.reshape(gbuf.valid.shape)
+
+
+def test_run_on_a_mesh_file_equals_an_independent_embree_cast(tmp_path):
+    knot = trimesh.creation.torus(major_radius=1.0, minor_radius=0.3)
+    knot.apply_translation((0, 1.5, 0))
+    ground = trimesh.creation.box(extents=(6, 0.1, 6))
+    mesh = trimesh.util.concatenate([knot, ground])
+    path = tmp_path / "model.ply"
+    mesh.export(path)
+    out = tmp_path / "out"
+    light = [1.0, 6.0, 2.0]
+    assert main(["run", "--set", f"scene.source={path}", "--set", "camera.resolution=[48,48]",
+                 "--set", f"light={{type=\"point\", position={light}}}",
+                 "--set", 'methods.names=["brute_force"]', "--out", str(out), "--quiet"]) == 0
+    arrays = np.load(out / "shadows.npz")
+    scene = sl.load_scene(path)
+    metrics = json.loads((out / "metrics.json").read_text())
+    cam = metrics["config"]["camera"]
+    assert arrays["valid"][0].sum() > 200
+    # Re-render the same view and compare the run's mask with trimesh's own ray cast.
+    from shadowlab.config import load_config
+    config = load_config(None, [f"scene.source={path}", "camera.resolution=[48,48]",
+                                f"light={{type=\"point\", position={light}}}"])
+    view = config.views(scene)[0]
+    gbuf = sl.render_gbuffer(scene, view.camera)
+    assert np.array_equal(gbuf.valid, arrays["valid"][0])
+    want = _independent_lit(trimesh.Trimesh(scene.vertices, scene.faces, process=False),
+                            gbuf, np.asarray(light))
+    got = arrays["brute_force/lit"][0]
+    assert np.array_equal(got, arrays["reference"][0])
+    assert 0 < want.sum() < gbuf.valid.sum()
+    assert np.array_equal(got, want), np.argwhere(got != want)
+    assert cam is not None
+
+
+def test_bad_input_exits_2_with_a_message(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "none.toml")]) == 2
+    assert "no such config file" in capsys.readouterr().err
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[light]\ntype = 'spot'\n")
+    assert main(["run", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "light.type" in err and "directional" in err
+    assert main(["run", "--set", f"scene.source={tmp_path / 'missing.obj'}"]) == 2
+    assert "missing.obj" in capsys.readouterr().err
+    assert main(["figures", "--root", str(tmp_path)]) == 2
+    assert "no experiments folder" in capsys.readouterr().err
+
+
+def test_interrupted_write_leaves_no_half_written_file(tmp_path, monkeypatch):
+    import shadowlab.io as sio
+
+    def explode(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sio.np, "savez_compressed", explode)
+    assert main(["run", *SMALL, "--out", str(tmp_path), "--quiet"]) == 130
+    assert not (tmp_path / "shadows.npz").exists()
+    assert not list(tmp_path.glob(".*"))
+
+
+def test_methods_and_scenes_listings(capsys):
+    assert main(["methods"]) == 0
+    out = capsys.readouterr().out
+    assert "brute_force" in out and "precision = 'float32'" in out
+    assert main(["scenes"]) == 0
+    out = capsys.readouterr().out
+    for name in ("sphere_grid", "gate", "fuzzy", "terrain", "blobs", "soup"):
+        assert name in out
+
+
+def test_bench_writes_json(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--size", "ci", "--repeats", "1", "--out", str(out), "--quiet",
+                 "--set", "camera.resolution=[32,32]"]) == 0
+    data = json.loads(out.read_text())
+    case = data["cases"][0]
+    row = case["methods"]["brute_force"]
+    assert case["reference"]["median_seconds"] > 0
+    assert row["error"]["mismatches"] == 0
+    assert row["ratio_to_reference"] == pytest.approx(
+        row["median_seconds"] / case["reference"]["median_seconds"])
+    assert "compile_seconds" in row and "test" in row["stages"]
