@@ -77,8 +77,9 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
 
 
 def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
-               progress: bool = True) -> list[str]:
-    """Run every experiment (or ``only`` those); return the names that failed."""
+               progress: bool = True, out: Path | None = None) -> list[str]:
+    """Run every experiment (or ``only`` those) writing to ``out`` (default
+    ``root/figures``); return the names that failed."""
     found = discover(root)
     names = only or list(found)
     unknown = sorted(set(names) - set(found))
@@ -89,7 +90,7 @@ def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
     for name in names:
         t0 = time.perf_counter()
         try:
-            run_experiment(root, name, size)
+            run_experiment(root, name, size, out)
             status = "ok"
         except Exception:
             traceback.print_exc()

@@ -1,0 +1,52 @@
+"""Every experiment runs at CI size, writes its figure and arrays, and passes its check."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shadowlab.figures import discover, regenerate, run_experiment
+
+ROOT = Path(__file__).resolve().parent.parent
+EXPERIMENTS = sorted(discover(ROOT))
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_experiment_at_ci_size(name, tmp_path):
+    arrays = run_experiment(ROOT, name, "ci", out=tmp_path)
+    assert (tmp_path / f"{name}.png").stat().st_size > 0
+    saved = np.load(tmp_path / f"{name}.npz")
+    assert set(saved.files) == set(arrays)
+    for key in arrays:
+        assert np.array_equal(saved[key], np.asarray(arrays[key]))
+
+
+def test_every_experiment_has_both_sizes():
+    for name in EXPERIMENTS:
+        for size in ("ci", "full"):
+            assert (ROOT / "configs" / "experiments" / f"{name}.{size}.toml").exists()
+
+
+def test_brute_force_check_fails_on_a_wrong_array(tmp_path):
+    """The check behind the figure can fail: a corrupted error map is caught."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bf", ROOT / "experiments" / "brute_force_error.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    arrays = dict(np.load(ROOT / "figures" / "brute_force_error.npz")) if (
+        ROOT / "figures" / "brute_force_error.npz").exists() else run_experiment(
+        ROOT, "brute_force_error", "ci", out=tmp_path)
+    cfg = {"max_mismatch_fraction": 0.0}
+    module.check(arrays, cfg)
+    bad = dict(arrays)
+    bad["mismatches"] = arrays["mismatches"] + 1
+    with pytest.raises(AssertionError):
+        module.check(bad, cfg)
+
+
+def test_unknown_experiment_is_an_error(tmp_path):
+    from shadowlab.figures import ExperimentError
+
+    with pytest.raises(ExperimentError, match="available"):
+        regenerate(ROOT, only=["nope"], out=tmp_path)
