@@ -12,7 +12,8 @@ import dataclasses
 @dataclasses.dataclass(frozen=True)
 class Counter:
     name: str
-    kind: str      # "int" (an exact count), "float", or "map" (int array [H, W])
+    kind: str      # "int" (an exact count), "float", "map" (int array [H, W]) or
+                   # "array" (1-D per-job values, e.g. iterations per job)
     meaning: str
 
 
@@ -26,6 +27,29 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("tests_per_pixel", "map", "inclusion tests performed for each pixel"),
     Counter("shadowed", "int", "samples found inside at least one shadow volume"),
     Counter("lit", "int", "pixels reported lit"),
+    # TOP-tree methods (psv, d_psv, d_stackless, d_hybrid; docs/psv.md)
+    Counter("visited_nodes", "int", "TOP-tree node visits summed over samples (a visit reads "
+            "one node; a depth-test skip and a stackless second visit count as visits)"),
+    Counter("visited_nodes_mean", "float", "visited_nodes / samples"),
+    Counter("visited_nodes_per_pixel", "map", "TOP-tree node visits of each pixel's query"),
+    Counter("stack_max", "int", "largest stack usage of any sample (entries)"),
+    Counter("stack_max_per_pixel", "map", "largest stack usage of each pixel's query"),
+    Counter("stack_overflows", "int", "pushes onto a full stack, summed over samples; each "
+            "loses an intersection subtree, as in the original PSV"),
+    Counter("overflow_pixels", "int", "samples with at least one stack overflow (their result "
+            "may be wrong)"),
+    Counter("stack_overflows_per_pixel", "map", "pushes onto a full stack of each pixel"),
+    Counter("stackless_switches", "int", "D-Hybrid switches from the short stack to the "
+            "stackless query, summed over samples"),
+    Counter("stackless_switches_per_pixel", "map", "D-Hybrid switches to stackless per pixel"),
+    Counter("tree_nodes", "int", "nodes of the TOP tree (4 per merged shadow volume)"),
+    Counter("tree_depth", "int", "nodes on the longest root-to-leaf path of the TOP tree"),
+    Counter("dropped_triangles", "int", "casters found inside another shadow volume during the "
+            "build and not merged"),
+    Counter("intersection_triangles", "int", "merged casters lying in some intersection subtree "
+            "(ancestor link set)"),
+    Counter("build_rounds", "int", "rounds of the parallel TOP-tree build"),
+    Counter("query_chunks", "int", "fixed-trip query chunks run (between lane compactions)"),
 ]}
 
 
@@ -41,3 +65,12 @@ def markdown_table() -> str:
     rows = ["| counter | kind | meaning |", "|---|---|---|"]
     rows += [f"| `{c.name}` | {c.kind} | {c.meaning} |" for c in COUNTERS.values()]
     return "\n".join(rows)
+
+
+if __name__ == "__main__":
+    # python -m shadowlab.counters > docs/counters.md
+    print("# Counters\n")
+    print("Every method and reference kernel reports counters by these names "
+          "(`shadowlab/counters.py` is the source; regenerate this file with "
+          "`python -m shadowlab.counters > docs/counters.md`).\n")
+    print(markdown_table())

@@ -20,8 +20,12 @@ import numpy as np
 
 from . import io
 from .analysis import compare_hard, compare_soft
+from .analysis.boundary import unexplained_mismatches
 from .methods import compute_shadows, get
 from .raycast import reference_shadows, render_gbuffer, soft_reference
+
+
+EXPLAIN_LIMIT = 200   # mismatched pixels checked for lying on a shadow boundary
 
 
 @dataclasses.dataclass
@@ -44,6 +48,8 @@ def _method_summary(frames: list[dict], name: str) -> dict:
            "median_ratio_to_reference": float(np.median(ratios)) if ratios else None}
     if "mismatches" in rows[0]["error"]:
         out["mismatches"] = int(sum(r["error"]["mismatches"] for r in rows))
+        unexplained = [r["error"]["unexplained"] for r in rows]
+        out["unexplained"] = None if None in unexplained else int(sum(unexplained))
         out["max_mismatch_fraction"] = float(max(r["error"]["mismatch_fraction"] for r in rows))
     else:
         out["mae"] = float(np.mean([r["error"]["mae"] for r in rows]))
@@ -92,6 +98,11 @@ def run(config, out_dir: str | Path | None = None, progress: bool = True,
                 error = compare_soft(res.lit, soft_truth_cache[index], gbuf.valid)
             else:
                 error = compare_hard(res.lit, truth, gbuf.valid)
+                # Mismatches on no shadow boundary (float64 check; skipped when many).
+                error["unexplained"] = (
+                    len(unexplained_mismatches(scene, gbuf, view.light, res.lit, truth,
+                                               ref_cfg.shadow_eps))
+                    if error["mismatches"] <= EXPLAIN_LIMIT else None)
             frame["methods"][name] = {"error": error, "counters": res.scalar_counters(),
                                       "timings": res.timings, "options": res.options}
             arrays.setdefault(f"{name}/lit", []).append(res.lit)
@@ -147,18 +158,19 @@ def _figures(arrays: dict, methods: list[str], folder: Path) -> list[Path]:
 
 def format_table(metrics: dict) -> str:
     """The summary as a plain-text table."""
-    head = (f"{'method':<16} {'frames':>6} {'mismatches':>10} {'max mism.%':>10} "
+    head = (f"{'method':<16} {'frames':>6} {'mismatches':>10} {'unexpl.':>7} {'max mism.%':>10} "
             f"{'median s':>9} {'compile s':>9} {'x Embree':>9} {'tests':>14}")
     lines = [head, "-" * len(head)]
     ref = np.median([f["reference_seconds"] for f in metrics["frames"]])
-    lines.append(f"{'reference':<16} {len(metrics['frames']):>6} {0:>10} {0.0:>10.4f} "
+    lines.append(f"{'reference':<16} {len(metrics['frames']):>6} {0:>10} {0:>7} {0.0:>10.4f} "
                  f"{ref:>9.4f} {0.0:>9.3f} {1.0:>9.2f} {'-':>14}")
     for name, s in metrics["summary"].items():
         mism = s.get("mismatches", "-")
         frac = f"{100 * s['max_mismatch_fraction']:.4f}" if "max_mismatch_fraction" in s \
             else f"mae {s.get('mae', 0):.3f}"
         ratio = s["median_ratio_to_reference"]
-        lines.append(f"{name:<16} {s['frames']:>6} {mism:>10} {frac:>10} "
+        unexpl = s.get("unexplained", "-")
+        lines.append(f"{name:<16} {s['frames']:>6} {mism:>10} {str(unexpl):>7} {frac:>10} "
                      f"{s['median_seconds']:>9.4f} {s['compile_seconds']:>9.3f} "
                      f"{ratio if ratio is None else round(ratio, 2):>9} "
                      f"{s.get('tests', '-'):>14}")

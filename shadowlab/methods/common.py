@@ -13,9 +13,19 @@ from ..scene.mesh import Scene
 from ..scene.view import Light, hard_light
 
 
-def bucket(n: int, minimum: int = 1024) -> int:
-    """The power of two >= max(n, minimum): static capacities come in few sizes."""
-    return max(minimum, 1 << max(0, int(n - 1).bit_length()))
+def bucket(n: int, minimum: int = 1024, steps: int = 1) -> int:
+    """A static capacity >= max(n, minimum) from a small set of sizes.
+
+    ``steps=1`` gives powers of two; ``steps=8`` gives 8 sizes per octave
+    (multiples of 2**(k-3) between 2**k and 2**(k+1)), so at most 12.5 % is padding
+    while the number of distinct compiled shapes stays logarithmic.
+    """
+    n = max(int(n), int(minimum), 1)
+    top = 1 << (n - 1).bit_length()
+    if steps <= 1 or top <= steps:
+        return top
+    grain = top // (2 * steps)
+    return -(-n // grain) * grain
 
 
 @contextlib.contextmanager
@@ -50,14 +60,14 @@ class Samples:
 
     def padded_position(self, dtype, capacity: int | None = None) -> np.ndarray:
         """[capacity, 3] positions in ``dtype``; rows past ``count`` are zeros."""
-        cap = capacity or bucket(self.count)
+        cap = capacity or bucket(self.count, steps=8)
         out = np.zeros((cap, 3), dtype=dtype)
         out[: self.count] = self.position
         return out
 
     def padded(self, values: np.ndarray, dtype, capacity: int | None = None) -> np.ndarray:
         """``values`` [count, ...] zero-padded to [capacity, ...] in ``dtype``."""
-        cap = capacity or bucket(self.count)
+        cap = capacity or bucket(self.count, steps=8)
         out = np.zeros((cap,) + values.shape[1:], dtype=dtype)
         out[: self.count] = values
         return out

@@ -1,0 +1,57 @@
+"""Metrics, boundary explanation of mismatches."""
+
+import numpy as np
+
+from shadowlab import Camera, PointLight, Scene
+from shadowlab.analysis import compare_hard, compare_soft, error_map
+from shadowlab.analysis.boundary import boundary_distance, unexplained_mismatches
+from shadowlab.raycast import GBuffer
+
+
+def test_error_map_and_counts():
+    truth = np.array([[1, 0, 1], [0, 0, 1]], bool)
+    lit = np.array([[1, 1, 0], [0, 1, 1]], bool)
+    valid = np.array([[1, 1, 1], [1, 0, 1]], bool)
+    err = error_map(lit, truth, valid)
+    assert err.tolist() == [[0, 1, -1], [0, 0, 0]]
+    stats = compare_hard(lit, truth, valid)
+    assert stats["mismatches"] == 2 and stats["false_lit"] == 1 and stats["false_shadow"] == 1
+    assert stats["valid_pixels"] == 5 and stats["invalid_pixels_lit"] == 1
+
+
+def test_soft_metrics():
+    truth = np.full((8, 8), 0.5)
+    vis = truth.copy()
+    vis[0, 0] = 1.0
+    valid = np.ones((8, 8), bool)
+    m = compare_soft(vis, truth, valid)
+    assert np.isclose(m["max_error"], 0.5) and np.isclose(m["mae"], 0.5 / 64)
+    assert np.isclose(m["rmse"], np.sqrt(0.25 / 64))
+    assert compare_soft(truth, truth, valid)["ssim"] == 1.0
+
+
+def _gbuffer(points, normals):
+    k = len(points)
+    cam = Camera(eye=(0, 1, 5), target=(0, 0, 0), resolution=(k, 1))
+    return GBuffer(position=np.asarray(points, float).reshape(1, k, 3),
+                   normal=np.asarray(normals, float).reshape(1, k, 3),
+                   depth=np.ones((1, k)), triangle=np.zeros((1, k), np.int32),
+                   valid=np.ones((1, k), bool), camera=cam)
+
+
+def test_mismatches_on_a_caster_edge_are_explained_others_are_not():
+    # An occluder square over x < 0 at height 1; the light right above x = 0.
+    occ = Scene(np.array([[-2, 1, -1], [0, 1, -1], [0, 1, 1], [-2, 1, 1]], float),
+                np.array([[0, 1, 2], [0, 2, 3]]), np.zeros(2))
+    ground = Scene(np.array([[-5, 0, -5], [5, 0, -5], [5, 0, 5], [-5, 0, 5]], float),
+                   np.array([[0, 2, 1], [0, 3, 2]]), np.zeros(2))
+    scene = Scene.concatenate([occ, ground])
+    light = PointLight((0.0, 4.0, 0.5))
+    gbuf = _gbuffer([[0.0, 0, 0.5], [3.0, 0, 0], [-1.0, 0, 0]], [[0, 1, 0]] * 3)
+    dist = boundary_distance(scene, gbuf, light, np.array([[0, 0], [0, 1], [0, 2]]))
+    assert dist["edge"][0] < 1e-12                 # the segment grazes the occluder edge
+    assert np.isinf(dist["edge"][1])               # nothing near
+    truth = np.array([[True, True, False]])
+    wrong = ~truth
+    left = unexplained_mismatches(scene, gbuf, light, wrong, truth)
+    assert sorted(map(tuple, left)) == [(0, 1), (0, 2)]
