@@ -1,0 +1,459 @@
+"""Partitioned shadow volumes: ``psv``, ``d_psv``, ``d_stackless``, ``d_hybrid``.
+
+Gerhards et al. 2015 (PSV, stack query) and Mora et al. 2016 (Deep PSV: depth test,
+stackless query through ancestor links, hybrid short-stack query). The TOP tree is
+built by ``top_tree.build_parallel``; the queries run vectorized over view samples as
+fixed-trip masked loops (``lax.fori_loop`` of ``chunk`` steps, one node visit per
+step and lane) with compaction of the unfinished lanes into a smaller power-of-two
+bucket between chunks, so the long tail of expensive pixels does not keep every
+lane busy. See docs/psv.md for the choices the papers leave open.
+
+Node tests are exactly those of ``brute_force``: a sample is inside an edge plane
+when ``plane(p) >= 0`` (option ``edge_tie="outside"``: ``> 0``, the other reading of
+the papers' ``location > 0``) and behind a cap when ``cap(p) * scale[p] < bound[t]``
+(the bias of ``common.bias_terms``).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry.planes import shadow_volume_planes
+from ..scene.view import hard_light
+from ..timing import StageTimer
+from . import top_tree as tt
+from .common import BIAS_MODES, bias_terms, bucket, cap_bias, precision_mode, view_samples
+from .registry import Option, register
+from .result import ShadowResult
+
+QUERIES = ("stack", "stackless", "hybrid")
+
+
+# --------------------------------------------------------------------------- casters
+
+@jax.jit
+def _setup(tri, light):
+    return shadow_volume_planes(tri, light)
+
+
+def frustum_light_hull(camera, light_h: np.ndarray, extent: float) -> np.ndarray:
+    """float64 [F, 4]: outward planes (n, d) of the convex hull of the view frustum and
+    the light (for a directional light: the frustum swept ``extent`` towards it)."""
+    from scipy.spatial import ConvexHull
+
+    inv = np.linalg.inv(camera.view_projection())
+    ndc = np.array([[x, y, z, 1.0] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    c = ndc @ inv.T
+    corners = c[:, :3] / c[:, 3:4]
+    if light_h[3] != 0:
+        pts = np.vstack([corners, light_h[:3][None]])
+    else:
+        pts = np.vstack([corners, corners + extent * light_h[:3][None]])
+    return ConvexHull(pts).equations
+
+
+def casters(scene, light, camera, dtype, face_culling: str, frustum_culling: bool):
+    """Planes [T, 4, 4] (dtype, NumPy), mask of kept triangles [T] and culling counts."""
+    light_h = hard_light(light).homogeneous
+    t = bucket(scene.num_triangles, minimum=256)
+    tri = np.zeros((t, 3, 3), dtype)
+    tri[: scene.num_triangles] = scene.triangles
+    planes, valid = _setup(jnp.asarray(tri), jnp.asarray(light_h.astype(dtype)))
+    planes = np.asarray(planes)[: scene.num_triangles]
+    keep = np.asarray(valid)[: scene.num_triangles].copy()
+    culled = {"degenerate": int((~keep).sum()), "face": 0, "frustum": 0}
+    tris = scene.triangles
+    if face_culling != "none":
+        n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        to_l = light_h[:3] - light_h[3] * tris[:, 0]
+        front = np.einsum("ij,ij->i", n, to_l) > 0
+        cull = front if face_culling == "front" else ~front
+        culled["face"] = int((keep & cull).sum())
+        keep &= ~cull
+    if frustum_culling:
+        eq = frustum_light_hull(camera, light_h, 4 * scene.diagonal)
+        tol = 1e-6 * max(scene.diagonal, 1e-30)
+        vals = tris @ eq[:, :3].T + eq[:, 3]               # [T, 3, F]
+        out = np.any(np.all(vals > tol, axis=1), axis=1)
+        culled["frustum"] = int((keep & out).sum())
+        keep &= ~out
+    return planes, keep, culled
+
+
+def classification_margin(scene, light, dtype, ulps: float) -> float:
+    """World-unit margin: ``ulps`` machine epsilons of the largest coordinate in play."""
+    light_h = hard_light(light).homogeneous
+    a = float(np.max(np.abs(scene.vertices))) if scene.num_triangles else 1.0
+    if light_h[3] != 0:
+        a = max(a, float(np.max(np.abs(light_h[:3]))))
+    return float(ulps) * float(np.finfo(dtype).eps) * a
+
+
+def build_tree(scene, light, camera, samples, *, dtype, shadow_eps, bias, order, seed, wedge,
+               classify_ulps, face_culling="none", frustum_culling=False, build="parallel",
+               timer=None):
+    """Cull, order and build; returns (TopTree, samples' scale [S] (float64), culled)."""
+    light_h = hard_light(light).homogeneous
+    planes, keep, culled = casters(scene, light, camera, dtype, face_culling, frustum_culling)
+    eps = cap_bias(scene, shadow_eps)
+    scale, bound = bias_terms(samples, light_h, planes, eps, bias)
+    idx = np.flatnonzero(keep)
+    margin = classification_margin(scene, light, dtype, classify_ulps)
+    cap_extra = eps
+    inp = tt.make_input(scene.triangles[idx], planes[idx], bound[idx], idx.astype(np.int32),
+                        light_h, dtype, margin, cap_extra, order, seed,
+                        bucket(max(len(idx), 1), minimum=256))
+    if build == "sequential":
+        tree = tt.build_sequential(inp, wedge)
+    else:
+        tree = tt.build_parallel(inp, wedge, timer)
+    return tree, scale, culled
+
+
+# --------------------------------------------------------------------------- queries
+
+@functools.lru_cache(maxsize=None)
+def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, overflow: str,
+                  stackless_cap: str, edge_tie: str, steps: int, directional: bool):
+    """A jitted function running ``steps`` node visits of every lane of a bucket."""
+    k = max(stack_size, 1)
+
+    def run(state, tree, pts, scale, key, lane_valid, light, tol):
+        plane, pos, inter, wedge_v, depth, anc, bound = tree
+        px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
+        if directional:
+            dist = jnp.ones_like(px)
+        else:
+            dx, dy, dz = px - light[0], py - light[1], pz - light[2]
+            dist = jnp.sqrt(dx * dx + dy * dy + dz * dz)
+        b = px.shape[0]
+        lanes = jnp.arange(b)
+        kio = jnp.arange(k)
+
+        def step(_, s):
+            act = ~s["done"] & lane_valid
+            n = jnp.where(act, s["node"], 0)
+            sv = n >> 2
+            is_cap = (n & 3) == 3
+            p = plane[n]
+            off = px * p[:, 0] + py * p[:, 1] + pz * p[:, 2] + p[:, 3]
+            if edge_tie == "inside":
+                inside_e = off >= 0
+            else:
+                inside_e = off > 0
+            inside = jnp.where(is_cap, off * scale < bound[sv], inside_e)
+            pchild = pos[n]
+            ichild = inter[n]
+            has_i = ichild >= 0
+            if wedge == "off":
+                wedge_ok = jnp.ones_like(act)
+            elif wedge == "vertex":
+                wedge_ok = jnp.abs(off) < wedge_v[n] * dist
+            else:
+                wedge_ok = jnp.abs(off) <= wedge_v[n] * dist + tol
+            wedge_ok = wedge_ok | is_cap
+            if depth_test:
+                skip = ((n & 3) == 0) & (key < depth[sv])
+            else:
+                skip = jnp.zeros_like(act)
+            a_link = anc[sv]
+            visited = s["visited"] + act
+
+            # -------- stackless transitions (d_stackless, hybrid in stackless mode)
+            if stackless_cap == "paper":
+                sl_inter_ok = wedge_ok
+            else:                                   # public code: cap clause dropped
+                sl_inter_ok = wedge_ok & ~is_cap
+            sl_desc = ~s["twice"] & has_i & sl_inter_ok
+            sl_pos_leaf = ~inside & (pchild < 0)
+            sl_node = jnp.where(skip, a_link, jnp.where(
+                sl_desc, ichild, jnp.where(~inside, jnp.where(pchild >= 0, pchild, a_link),
+                                           n + 1)))
+            sl_twice = skip | (~sl_desc & sl_pos_leaf)
+            sl_shadow = ~skip & ~sl_desc & inside & is_cap
+            sl_lit = (sl_node < 0) & ~sl_shadow
+
+            if query == "stackless":
+                done = s["done"] | (act & (sl_shadow | sl_lit))
+                shadow = s["shadow"] | (act & sl_shadow)
+                return dict(s, node=jnp.where(act, sl_node, s["node"]),
+                            twice=jnp.where(act, sl_twice, s["twice"]), done=done,
+                            shadow=shadow, visited=visited)
+
+            # -------- stack transitions (psv, d_psv, hybrid in stack mode)
+            sp = s["sp"]
+            if query == "hybrid":
+                in_sl = s["sl"]
+                back = in_sl & s["twice"] & (n == s["ret"])   # returned to the switch node
+                in_sl = in_sl & ~back
+                st_mode = act & ~in_sl
+            else:
+                in_sl = jnp.zeros_like(act)
+                st_mode = act
+            want = ~skip & has_i & wedge_ok & ~s["twice"]
+            can = sp < stack_size
+            push = st_mode & want & can
+            full = st_mode & want & ~can
+            if query == "hybrid":
+                switch = full
+                lost = jnp.zeros_like(act)
+            else:
+                switch = jnp.zeros_like(act)
+                lost = full
+            stack = s["stack"].at[lanes, jnp.where(push, sp, k)].set(ichild, mode="drop")
+            sp1 = sp + push
+            go_pos = ~skip & ~inside & (pchild >= 0)
+            go_neg = ~skip & inside & ~is_cap
+            st_shadow = ~skip & inside & is_cap & ~switch
+            need_pop = ~switch & ~go_pos & ~go_neg & ~st_shadow
+            top = stack[lanes, jnp.clip(sp1 - 1, 0, k - 1)]
+            popped = need_pop & (sp1 > 0)
+            st_lit = need_pop & (sp1 == 0)
+            st_node = jnp.where(switch, ichild, jnp.where(go_pos, pchild, jnp.where(
+                go_neg, n + 1, jnp.where(popped, top, -1))))
+            sp2 = sp1 - popped
+
+            sl_act = act & in_sl
+            node = jnp.where(st_mode, st_node, jnp.where(sl_act, sl_node, s["node"]))
+            twice = jnp.where(st_mode, False, jnp.where(sl_act, sl_twice, s["twice"]))
+            shadow_now = (st_mode & st_shadow) | (sl_act & sl_shadow)
+            lit_now = (st_mode & st_lit) | (sl_act & sl_lit)
+            out = dict(s, node=node, twice=twice, stack=stack,
+                       sp=jnp.where(st_mode, sp2, sp),
+                       done=s["done"] | shadow_now | lit_now,
+                       shadow=s["shadow"] | shadow_now, visited=visited,
+                       stack_max=jnp.maximum(s["stack_max"], jnp.where(st_mode, sp1, 0)),
+                       overflows=s["overflows"] + lost)
+            if query == "hybrid":
+                out["sl"] = jnp.where(act, in_sl | switch, s["sl"])
+                out["ret"] = jnp.where(switch, n, s["ret"])
+                out["switches"] = s["switches"] + switch
+            return out
+
+        return jax.lax.fori_loop(0, steps, step, state)
+
+    return jax.jit(run)
+
+
+def init_state(b: int, root: int, query: str, stack_size: int) -> dict:
+    """The query state of ``b`` lanes, all at the root (NumPy arrays)."""
+    s = {"node": np.full(b, root, np.int32), "done": np.full(b, root < 0),
+         "shadow": np.zeros(b, bool), "twice": np.zeros(b, bool),
+         "visited": np.zeros(b, np.int32)}
+    if query != "stackless":
+        s.update(stack=np.zeros((b, max(stack_size, 1)), np.int32), sp=np.zeros(b, np.int32),
+                 stack_max=np.zeros(b, np.int32), overflows=np.zeros(b, np.int32))
+    if query == "hybrid":
+        s.update(sl=np.zeros(b, bool), ret=np.full(b, -1, np.int32),
+                 switches=np.zeros(b, np.int32))
+    return s
+
+
+def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.ndarray,
+              light_h: np.ndarray, *, query: str, depth_test: bool, wedge: str,
+              stack_size: int, stackless_cap: str = "paper", edge_tie: str = "inside",
+              chunk: int = 32, timer: StageTimer | None = None) -> dict:
+    """Locate every point in the tree.
+
+    Args:
+        points: [S, 3] (tree dtype); scale: [S] cap-bias scale; key: [S] depth keys
+            (``top_tree.light_key``); light_h: float64 [4].
+        query: "stack" (PSV / D-PSV; a push onto a full stack is lost and counted),
+            "stackless" (D-Stackless), "hybrid" (short stack, stackless when full).
+
+    Returns:
+        dict of NumPy arrays [S]: ``shadow`` bool, ``visited``, ``stack_max``,
+        ``overflows``, ``switches`` (int32; zeros where not applicable); ``chunks``.
+    """
+    dt = tree.plane.dtype.type
+    s_count = points.shape[0]
+    tol = dt(tree.margin)
+    treeargs = tuple(jnp.asarray(a) for a in (tree.plane, tree.pos, tree.inter, tree.wedge,
+                                              tree.depth, tree.anc, tree.bound))
+    light = jnp.asarray(light_h.astype(dt))
+    kernel = _chunk_kernel(query, depth_test, wedge, stack_size, "lose", stackless_cap,
+                           edge_tie, chunk, bool(light_h[3] == 0))
+    out = {name: np.zeros(s_count, np.int32) for name in
+           ("visited", "stack_max", "overflows", "switches")}
+    out["shadow"] = np.zeros(s_count, bool)
+    lane_id = np.arange(s_count)
+    b = bucket(max(s_count, 1), minimum=256)
+    state = init_state(b, tree.root, query, stack_size)
+
+    def pad(a, cap, fill=0):
+        o = np.full((cap,) + a.shape[1:], fill, a.dtype)
+        o[: len(a)] = a
+        return o
+
+    cur_pts, cur_scale, cur_key = points, scale, key
+    n_chunks = 0
+    while True:
+        live = len(lane_id)
+        args = (state, treeargs, jnp.asarray(pad(cur_pts.astype(dt), b)),
+                jnp.asarray(pad(cur_scale.astype(dt), b)),
+                jnp.asarray(pad(cur_key.astype(dt), b, np.inf)),
+                jnp.asarray(np.arange(b) < live), light, jnp.asarray(tol))
+        if timer is not None:
+            state = timer.run("query", kernel, *args)
+        else:
+            state = kernel(*args)
+        n_chunks += 1
+        state = {k2: np.asarray(v) for k2, v in state.items()}
+        done = state["done"][:live]
+        # Record every lane's counters (final for finished lanes).
+        out["visited"][lane_id] = state["visited"][:live]
+        out["shadow"][lane_id] = state["shadow"][:live]
+        for name in ("stack_max", "overflows", "switches"):
+            if name in state:
+                out[name][lane_id] = state[name][:live]
+        if done.all():
+            break
+        keep = np.flatnonzero(~done)
+        nb = bucket(len(keep), minimum=256)
+        if nb < b:
+            lane_id = lane_id[keep]
+            cur_pts, cur_scale, cur_key = cur_pts[keep], cur_scale[keep], cur_key[keep]
+            state = {k2: pad(v[keep], nb) for k2, v in state.items()}
+            state["done"][len(keep):] = True
+            b = nb
+    out["chunks"] = n_chunks
+    return out
+
+
+# --------------------------------------------------------------------------- methods
+
+_COMMON = {
+    "order": Option("random", "insertion order of the triangles: seeded random (the "
+                    "papers), mesh order, or nearest-to-the-light first", allowed=tt.ORDERS),
+    "seed": Option(0, "seed of the random insertion order", kind=int, minimum=0),
+    "wedge": Option("conservative", "wedge optimization: 'conservative' (a provable bound: "
+                    "max vertex distance to the plane / triangle distance to the light), "
+                    "'vertex' (the public code's max vertex angle, not a bound for wide "
+                    "triangles), 'off'", allowed=tt.WEDGES),
+    "classify_ulps": Option(64, "classification margin in machine epsilons of the largest "
+                            "coordinate: a triangle within it of a plane goes to the "
+                            "intersection child (0 = the paper's plain sign test)",
+                            kind=int, minimum=0),
+    "face_culling": Option("none", "cull casters whose winding normal faces the light "
+                           "('front', the papers' setting; exact only for closed meshes) or "
+                           "faces away ('back')", allowed=("none", "front", "back")),
+    "frustum_culling": Option(False, "cull casters outside the convex hull of the view "
+                              "frustum and the light (Mora et al. 2016)", allowed=(False, True)),
+    "edge_tie": Option("inside", "a sample exactly on an edge plane is inside (as "
+                       "brute_force) or outside", allowed=("inside", "outside")),
+    "bias": Option("receiver", "self-shadowing bias (see brute_force)", allowed=BIAS_MODES),
+    "build": Option("parallel", "'parallel' (JAX rounds) or 'sequential' (NumPy reference, "
+                    "slow)", allowed=("parallel", "sequential")),
+    "chunk": Option(32, "node visits per lane between compactions of unfinished lanes",
+                    kind=int, minimum=1),
+}
+
+
+def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
+         stackless_cap="paper", **o):
+    timer = StageTimer()
+    with timer.stage("samples"):
+        samples = view_samples(gbuf, light)
+    light_h = hard_light(light).homogeneous
+    with precision_mode(o["precision"]) as dtype:
+        with timer.stage("setup"):
+            pass
+        tree, scale, culled = build_tree(
+            scene, light, gbuf.camera, samples, dtype=dtype, shadow_eps=o["shadow_eps"],
+            bias=o["bias"], order=o["order"], seed=o["seed"], wedge=o["wedge"],
+            classify_ulps=o["classify_ulps"], face_culling=o["face_culling"],
+            frustum_culling=o["frustum_culling"], build=o["build"], timer=timer)
+        key = tt.light_key(samples.position, light_h)
+        res = run_query(tree, samples.position.astype(dtype), scale, key, light_h,
+                        query=query, depth_test=depth_test, wedge=o["wedge"],
+                        stack_size=stack_size, stackless_cap=stackless_cap,
+                        edge_tie=o["edge_tie"], chunk=o["chunk"], timer=timer)
+    shadow = res["shadow"]
+    lit = samples.scatter(~shadow, fill=False)
+    st = tree.stats()
+    n = max(samples.count, 1)
+    counters = {
+        "samples": samples.count,
+        "casters": int(tree.count),
+        "culled_triangles": scene.num_triangles - int(tree.count),
+        "shadowed": int(shadow.sum()),
+        "lit": int(lit.sum()),
+        "visited_nodes": int(res["visited"].sum()),
+        "visited_nodes_mean": float(res["visited"].sum()) / n,
+        "visited_nodes_per_pixel": samples.scatter(res["visited"], fill=0),
+        "tree_nodes": st["tree_nodes"],
+        "tree_depth": st["tree_depth"],
+        "dropped_triangles": st["dropped_triangles"],
+        "intersection_triangles": st["intersection_triangles"],
+        "build_rounds": st["build_rounds"],
+        "query_chunks": int(res["chunks"]),
+    }
+    if query != "stackless":
+        counters.update({
+            "stack_max": int(res["stack_max"].max(initial=0)),
+            "stack_max_per_pixel": samples.scatter(res["stack_max"], fill=0),
+        })
+    if query == "stack":
+        counters.update({
+            "stack_overflows": int(res["overflows"].sum()),
+            "overflow_pixels": int((res["overflows"] > 0).sum()),
+            "stack_overflows_per_pixel": samples.scatter(res["overflows"], fill=0),
+        })
+    if query == "hybrid":
+        counters.update({
+            "stackless_switches": int(res["switches"].sum()),
+            "stackless_switches_per_pixel": samples.scatter(res["switches"], fill=0),
+        })
+    timings = dict(timer.times, total=timer.total)
+    opts = dict(o, stack_size=stack_size) if query != "stackless" else dict(o)
+    if query in ("stackless", "hybrid"):
+        opts["stackless_cap"] = stackless_cap
+    return ShadowResult(lit, counters, timings, name, opts)
+
+
+_STACK = {"stack_size": Option(32, "stack entries per sample (a push onto a full stack is "
+                               "lost, as in the original; counted as an overflow)",
+                               kind=int, minimum=1)}
+_HSTACK = {"stack_size": Option(12, "short-stack entries per sample before switching to "
+                                "the stackless query", kind=int, minimum=1)}
+_SLCAP = {"stackless_cap": Option("paper", "stackless query at a cap node with an "
+                                  "intersection child: 'paper' descends into it (Algorithm 3), "
+                                  "'public' never does (the public code; loses occluders)",
+                                  allowed=("paper", "public"))}
+
+
+@register("psv", doc="Partitioned Shadow Volumes: TOP tree, stack query (Gerhards et al. 2015)",
+          paper="mora2016-deep-partitioned-shadow-volumes.txt (Algorithm 1)",
+          options={**_COMMON, **_STACK})
+def psv(scene, gbuf, light, *, stack_size, **o):
+    return _run("psv", scene, gbuf, light, query="stack", depth_test=False,
+                stack_size=stack_size, **o)
+
+
+@register("d_psv", doc="PSV stack query with the depth test (Mora et al. 2016)",
+          paper="mora2016-deep-partitioned-shadow-volumes.txt (3.3)",
+          options={**_COMMON, **_STACK})
+def d_psv(scene, gbuf, light, *, stack_size, **o):
+    return _run("d_psv", scene, gbuf, light, query="stack", depth_test=True,
+                stack_size=stack_size, **o)
+
+
+@register("d_stackless", doc="stackless TOP-tree query with ancestor links and depth test "
+          "(Mora et al. 2016)", paper="mora2016-deep-partitioned-shadow-volumes.txt "
+          "(Algorithm 3)", options={**_COMMON, **_SLCAP})
+def d_stackless(scene, gbuf, light, *, stackless_cap, **o):
+    return _run("d_stackless", scene, gbuf, light, query="stackless", depth_test=True,
+                stackless_cap=stackless_cap, **o)
+
+
+@register("d_hybrid", doc="short-stack TOP-tree query switching to the stackless query "
+          "when the stack is full, with depth test (Mora et al. 2016)",
+          paper="mora2016-deep-partitioned-shadow-volumes.txt (3.5)",
+          options={**_COMMON, **_HSTACK, **_SLCAP})
+def d_hybrid(scene, gbuf, light, *, stack_size, stackless_cap, **o):
+    return _run("d_hybrid", scene, gbuf, light, query="hybrid", depth_test=True,
+                stack_size=stack_size, stackless_cap=stackless_cap, **o)

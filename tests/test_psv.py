@@ -1,0 +1,164 @@
+"""PSV queries: equal to the reference, overflow detection, counters against plain loops."""
+
+import numpy as np
+import pytest
+
+import shadowlab as sl
+from shadowlab.methods import psv as psvm
+from shadowlab.methods import top_tree as tt
+from shadowlab.methods.common import precision_mode, view_samples
+from shadowlab.scene.procedural import default_view
+
+METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
+SCENES = {
+    "gate": {"trees": 4, "leaves_per_tree": 80, "bars": 5},
+    "sphere_grid": {"n": 3, "triangles_per_sphere": 200},
+    "soup": {"count": 100},
+    "fuzzy": {"triangles": 3000},
+}
+
+
+def _setup(name, res=64):
+    params = SCENES[name]
+    scene = sl.load_scene(name, **params)
+    view = default_view(name, scene, **params)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(res, res)))
+    return scene, view.light, gbuf, sl.reference_shadows(scene, gbuf, view.light)
+
+
+_CACHE = {}
+
+
+def _scene(name, res=64):
+    if (name, res) not in _CACHE:
+        _CACHE[(name, res)] = _setup(name, res)
+    return _CACHE[(name, res)]
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_queries_equal_reference(name, precision):
+    scene, light, gbuf, truth = _scene(name)
+    visited = {}
+    for m in METHODS:
+        r = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision)
+        ok = gbuf.valid
+        if m in ("psv", "d_psv"):
+            ok = ok & (r.counters["stack_overflows_per_pixel"] == 0)
+        assert np.count_nonzero((r.lit != truth) & ok) == 0, m
+        visited[m] = r.counters["visited_nodes"]
+        assert r.counters["visited_nodes"] == r.counters["visited_nodes_per_pixel"].sum()
+    # The depth test never adds visits to the stack query; hybrid with a stack that
+    # never fills visits exactly what D-PSV visits.
+    assert visited["d_psv"] <= visited["psv"]
+
+
+def test_options_keep_the_result():
+    scene, light, gbuf, truth = _scene("gate")
+    for opts in ({"wedge": "off"}, {"order": "mesh"}, {"order": "distance"},
+                 {"frustum_culling": True}, {"seed": 5}, {"build": "sequential"}):
+        r = sl.compute_shadows(scene, gbuf, light, method="d_hybrid", **opts)
+        assert np.count_nonzero((r.lit != truth) & gbuf.valid) == 0, opts
+
+
+def test_stack_overflow_is_detected_and_hybrid_switches():
+    scene, light, gbuf, truth = _scene("fuzzy")
+    r = sl.compute_shadows(scene, gbuf, light, method="psv", stack_size=1)
+    ov = r.counters["stack_overflows_per_pixel"]
+    assert r.counters["overflow_pixels"] > 0
+    assert r.counters["overflow_pixels"] == np.count_nonzero(ov)
+    assert r.counters["stack_overflows"] == ov.sum()
+    assert r.counters["stack_max"] == 1
+    wrong = (r.lit != truth) & gbuf.valid
+    assert not np.any(wrong & (ov == 0))        # errors only where the stack overflowed
+    h = sl.compute_shadows(scene, gbuf, light, method="d_hybrid", stack_size=1)
+    assert h.counters["stackless_switches"] > 0
+    assert h.counters["stack_max"] <= 1
+    assert np.count_nonzero((h.lit != truth) & gbuf.valid) == 0
+
+
+# --------------------------------------------------------------------------- plain loops
+
+def _plain_query(tree, p, scale, key, light_h, query, depth_test, stack_size, wedge):
+    """One sample, one node at a time (Python), mirroring docs/psv.md."""
+    plane, pos, inter = tree.plane, tree.pos, tree.inter
+    dist = 1.0 if light_h[3] == 0 else float(np.linalg.norm(p.astype(np.float64) - light_h[:3]))
+    node, twice, stack, sl, ret = tree.root, False, [], query == "stackless", -1
+    visited = smax = overflows = switches = 0
+    while node >= 0:
+        visited += 1
+        sv, cap = node >> 2, (node & 3) == 3
+        off = float(p[0] * plane[node, 0] + p[1] * plane[node, 1] + p[2] * plane[node, 2]
+                    + plane[node, 3])
+        inside = (off * scale < tree.bound[sv]) if cap else off >= 0
+        wok = cap or wedge == "off" or abs(off) <= tree.wedge[node] * dist + tree.margin
+        skip = depth_test and (node & 3) == 0 and key < tree.depth[sv]
+        if query == "hybrid" and sl and twice and node == ret:
+            sl = False
+        if sl:
+            if skip:
+                node, twice = int(tree.anc[sv]), True
+            elif not twice and inter[node] >= 0 and wok:
+                node = int(inter[node])
+            else:
+                twice = False
+                if not inside:
+                    if pos[node] >= 0:
+                        node = int(pos[node])
+                    else:
+                        node, twice = int(tree.anc[sv]), True
+                elif cap:
+                    return False, visited, smax, overflows, switches
+                else:
+                    node += 1
+            continue
+        if skip:
+            node = stack.pop() if stack else -1
+            continue
+        if inter[node] >= 0 and wok and not twice:
+            if len(stack) < stack_size:
+                stack.append(int(inter[node]))
+                smax = max(smax, len(stack))
+            elif query == "hybrid":
+                sl, ret, switches, node = True, node, switches + 1, int(inter[node])
+                continue
+            else:
+                overflows += 1
+        twice = False
+        if not inside:
+            node = int(pos[node]) if pos[node] >= 0 else (stack.pop() if stack else -1)
+        elif cap:
+            return False, visited, smax, overflows, switches
+        else:
+            node += 1
+    return True, visited, smax, overflows, switches
+
+
+@pytest.mark.parametrize("method,query,depth,stack", [
+    ("psv", "stack", False, 2), ("d_psv", "stack", True, 3),
+    ("d_stackless", "stackless", True, 0), ("d_hybrid", "hybrid", True, 2)])
+def test_counters_against_plain_loop(method, query, depth, stack):
+    scene, light, gbuf, _ = _scene("sphere_grid", res=24)
+    kw = {} if query == "stackless" else {"stack_size": stack}
+    r = sl.compute_shadows(scene, gbuf, light, method=method, **kw)
+    samples = view_samples(gbuf, light)
+    light_h = sl.scene.view.hard_light(light).homogeneous
+    with precision_mode("float32") as dtype:
+        tree, scale, _ = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=dtype,
+                                         shadow_eps=1e-5, bias="receiver", order="random",
+                                         seed=0, wedge="conservative", classify_ulps=64)
+    key = tt.light_key(samples.position, light_h).astype(np.float32)
+    pts = samples.position.astype(np.float32)
+    sc = scale.astype(np.float32)
+    got = {k: r.counters[k][np.unravel_index(samples.index, gbuf.valid.shape)]
+           for k in r.counters if k.endswith("_per_pixel")}
+    lit = r.lit.reshape(-1)[samples.index]
+    for i in range(samples.count):
+        l, v, smax, ov, sw = _plain_query(tree, pts[i], sc[i], key[i], light_h, query, depth,
+                                          stack, "conservative")
+        assert l == lit[i] and v == got["visited_nodes_per_pixel"][i], i
+        if query != "stackless":
+            assert smax == got["stack_max_per_pixel"][i]
+        if query == "stack":
+            assert ov == got["stack_overflows_per_pixel"][i]
+        if query == "hybrid":
+            assert sw == got["stackless_switches_per_pixel"][i]

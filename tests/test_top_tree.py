@@ -1,0 +1,132 @@
+"""TOP tree: parallel build == sequential build node for node, depth, distances, stats."""
+
+import numpy as np
+import pytest
+
+import shadowlab as sl
+from shadowlab.methods import psv as psvm
+from shadowlab.methods import top_tree as tt
+from shadowlab.methods.common import precision_mode, view_samples
+from shadowlab.scene.procedural import default_view
+
+
+def _brute_distance(p, tri, k=60):
+    u, v = np.meshgrid(np.linspace(0, 1, k), np.linspace(0, 1, k))
+    m = (u + v) <= 1
+    u, v = u[m], v[m]
+    pts = (tri[:, None, 0] * (1 - u - v)[None, :, None] + tri[:, None, 1] * u[None, :, None]
+           + tri[:, None, 2] * v[None, :, None])
+    return np.linalg.norm(pts - p, axis=-1).min(axis=1)
+
+
+def test_point_triangle_distance_against_sampling():
+    rng = np.random.default_rng(1)
+    tri = rng.normal(size=(200, 3, 3))
+    p = rng.normal(size=3)
+    d = tt.point_triangle_distance(p, tri)
+    approx = _brute_distance(p, tri)
+    assert np.all(d <= approx + 1e-12)
+    assert np.all(d >= approx - 0.05 * np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1).max())
+    # A point right above a triangle's interior: distance is the height.
+    t = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], float)
+    assert tt.point_triangle_distance(np.array([0.2, 0.2, 3.0]), t)[0] == pytest.approx(3.0)
+    assert tt.point_triangle_distance(np.array([2.0, 0.0, 0.0]), t)[0] == pytest.approx(1.0)
+
+
+def _input(name, params, precision, order, seed=0, ulps=64):
+    scene = sl.load_scene(name, **params)
+    view = default_view(name, scene, **params)
+    cam = view.camera.replace(resolution=(16, 16))
+    gbuf = sl.render_gbuffer(scene, cam)
+    samples = view_samples(gbuf, view.light)
+    return scene, view, cam, samples
+
+
+def _trees(name, params, precision, order, wedge="conservative", ulps=64):
+    scene, view, cam, samples = _input(name, params, precision, order)
+    out = []
+    with precision_mode(precision) as dtype:
+        for build in ("parallel", "sequential"):
+            tree, _, _ = psvm.build_tree(scene, view.light, cam, samples, dtype=dtype,
+                                         shadow_eps=1e-5, bias="receiver", order=order, seed=3,
+                                         wedge=wedge, classify_ulps=ulps, build=build)
+            out.append(tree)
+    return scene, view.light, out
+
+
+@pytest.mark.parametrize("name,params,order,wedge,ulps", [
+    ("soup", {"count": 60}, "random", "conservative", 64),
+    ("sphere_grid", {"n": 2, "triangles_per_sphere": 128}, "mesh", "vertex", 64),
+    ("sphere_grid", {"n": 2, "triangles_per_sphere": 128}, "distance", "conservative", 0),
+    ("gate", {"trees": 2, "leaves_per_tree": 40, "bars": 3}, "random", "off", 64),
+])
+def test_parallel_build_equals_sequential(name, params, order, wedge, ulps, precision):
+    scene, light, (par, seq) = _trees(name, params, precision, order, wedge, ulps)
+    assert par.count > 100
+    assert par.same_as(seq) == []
+    st = par.stats()
+    assert st["tree_nodes"] == 4 * st["merged_triangles"]
+    assert st["merged_triangles"] + st["dropped_triangles"] == par.count
+    assert par.rounds >= 1 and st["tree_depth"] >= 4
+    # Every merged volume is reachable exactly once from the root through child links.
+    links = np.concatenate([par.pos[par.pos >= 0], par.inter[par.inter >= 0], [par.root]])
+    merged = np.flatnonzero(par.status == tt.STATUS_MERGED)
+    assert np.array_equal(np.sort(links), 4 * merged)
+
+
+def test_depth_and_ancestor_against_a_plain_loop(precision):
+    scene, light, (par, _) = _trees("gate", {"trees": 2, "leaves_per_tree": 40, "bars": 3},
+                                    precision, "random")
+    # Re-descend every inserted triangle through the final tree with a plain loop.
+    dt = par.plane.dtype.type
+    light_h = sl.scene.view.hard_light(light).homogeneous
+    tris = scene.triangles[par.tri[: par.count]]
+    keys = tt.triangle_key(tris, light_h)
+    expect = np.full(par.capacity, np.inf)
+    for r in range(par.count):
+        verts = tris[r].astype(dt)
+        node, last, path = par.root, -1, []
+        while node >= 0 and node != 4 * r:
+            path.append(node >> 2)
+            vals = np.array([((v[0] * par.plane[node, 0] + v[1] * par.plane[node, 1])
+                              + v[2] * par.plane[node, 2]) + par.plane[node, 3] for v in verts])
+            cap = (node & 3) == 3
+            code = int(tt._classify(np, None, vals, cap, dt(par.margin),
+                                    dt(tt_cap_extra(scene))))
+            if code == 1:
+                if cap:
+                    assert par.status[r] == tt.STATUS_DROPPED
+                    break
+                node += 1
+                continue
+            if code == 2:
+                last = node
+            node = int((par.inter if code == 2 else par.pos)[node])
+        if par.status[r] == tt.STATUS_MERGED:
+            assert node == 4 * r
+            assert par.anc[r] == last
+            assert par.level[r] == len(path)
+            path.append(r)
+        for sv in path:
+            expect[sv] = min(expect[sv], keys[r])
+    merged = par.status == tt.STATUS_MERGED
+    # Stored depth = exact minimum key rounded down by the margin, never above it.
+    exact = expect[merged] - par.margin
+    assert np.all(par.depth[merged] <= exact)
+    assert np.allclose(par.depth[merged], exact, rtol=1e-5, atol=4 * par.margin + 1e-6)
+
+
+def tt_cap_extra(scene):
+    from shadowlab.methods.common import cap_bias
+    return cap_bias(scene, 1e-5)
+
+
+def test_insertion_orders():
+    key = np.array([3.0, 1.0, 2.0, 1.0])
+    assert list(tt.insertion_order(4, "distance", 0, key)) == [1, 3, 2, 0]
+    assert list(tt.insertion_order(4, "mesh", 0)) == [0, 1, 2, 3]
+    a = tt.insertion_order(50, "random", 7)
+    assert np.array_equal(a, tt.insertion_order(50, "random", 7))
+    assert sorted(a) == list(range(50))
+    with pytest.raises(ValueError):
+        tt.insertion_order(3, "bogus", 0)
