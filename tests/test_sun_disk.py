@@ -1,0 +1,200 @@
+"""The sun-disk bitmask rasterizer against plain NumPy loops over cell centres."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from shadowlab.methods import sun_disk as sd
+
+
+def test_disk_mask_constants():
+    g = sd.grid("16x16")
+    assert g.disk_bits == 208
+    assert [int(w) for w in g.disk_mask()] == list(sd.PAPER_DISK_16X16)
+    # 31xN: the cells whose centres lie in the unit disk, counted by a plain loop
+    for name in sd.GRID_NAMES[1:]:
+        g = sd.grid(name)
+        count = 0
+        for r in range(g.rows):
+            for j in range(g.cols):
+                x = -1 + (j + 0.5) * 2 / g.cols
+                y = -1 + (r + 0.5) * 2 / g.rows
+                count += x * x + y * y <= 1
+        assert g.disk_bits == count
+        assert all(int(w) < 2 ** 31 for w in g.disk_mask())
+        cells = sd.rows_to_cells(g.disk_rows(), g.cols)
+        assert np.array_equal(cells, cells[:, ::-1]) and np.array_equal(cells, cells[::-1])
+    assert [sd.grid(n).disk_bits for n in sd.GRID_NAMES] == [208, 77, 127, 169, 369, 749]
+
+
+def test_shift_by_32_and_31():
+    x = jnp.asarray(np.array([0xFFFFFFFF] * 4, np.uint32))
+    out = np.asarray(sd.shr(x, jnp.asarray([0, 1, 31, 32], jnp.uint32)))
+    assert out.tolist() == [0xFFFFFFFF, 0x7FFFFFFF, 1, 0]
+
+
+def _loop_cells(edges, g):
+    """bool [rows, cols] (True = inside all edges) and an ambiguity mask (|f| tiny)."""
+    inside = np.zeros((g.rows, g.cols), bool)
+    near = np.zeros((g.rows, g.cols), bool)
+    for r in range(g.rows):
+        for j in range(g.cols):
+            x = -1 + (j + 0.5) * 2 / g.cols
+            y = -1 + (r + 0.5) * 2 / g.rows
+            f = [a * x + b * y + c for a, b, c in edges]
+            scale = [abs(a) + abs(b) + abs(c) for a, b, c in edges]
+            inside[r, j] = all(v >= 0 for v in f)
+            near[r, j] = any(abs(v) <= 1e-9 * max(s, 1e-300) for v, s in zip(f, scale))
+    return inside, near
+
+
+@pytest.mark.parametrize("name", sd.GRID_NAMES)
+def test_scanline_rasterizer_matches_cell_centre_loop(name):
+    g = sd.grid(name)
+    rng = np.random.default_rng(1)
+    tris = rng.uniform(-1.6, 1.6, (40, 3, 2))
+    tris[0] = [[-5, -5], [5, -5], [0, 10]]            # covers every cell
+    tris[1] = [[-1, 0], [1, 0], [0, 0]]                 # degenerate
+    tris[2] = [[-3, 0.1], [3, 0.1], [0, 5]]             # horizontal edge
+    tris[3] = [[5, 5], [6, 5], [5, 6]]                  # outside
+    with jax.enable_x64(True):
+        edges, ok = sd.triangle_edges_2d(jnp.asarray(tris))
+        rows = np.asarray(sd.polygon_keep_rows(edges, g, ok))
+        words = np.asarray(sd.pack_rows(jnp.asarray(rows), g))
+    assert not ok[1] and ok[0]
+    assert np.array_equal(sd.unpack_words_np(words, g), rows)
+    for t in range(len(tris)):
+        inside, near = _loop_cells(np.asarray(edges[t]), g)
+        if not ok[t]:
+            inside[:] = False
+        got = ~sd.rows_to_cells(rows[t], g.cols)
+        assert np.array_equal(got[~near], inside[~near]), t
+    assert (~sd.rows_to_cells(rows[0], g.cols)).all()
+    assert sd.rows_to_cells(rows[3], g.cols).all()
+
+
+def test_union_semantics_two_halves_give_fifty_percent():
+    g = sd.grid("16x16")
+    left_a = np.array([[-3.0, -3.0], [0.0, -3.0], [0.0, 3.0]])
+    left_b = np.array([[-3.0, -3.0], [0.0, 3.0], [-3.0, 3.0]])
+    left = np.stack([left_a, left_b])                   # together: the half x <= 0
+    same = np.stack([left_a, left_a])
+    for tris, expect in [(left, 0.5), (same, None)]:
+        edges, ok = sd.triangle_edges_2d(jnp.asarray(tris, jnp.float32))
+        keep = sd.pack_rows(sd.polygon_keep_rows(edges, g, ok), g)
+        grid = jnp.asarray(g.disk_mask()) & keep[0] & keep[1]
+        vis = float(sd.visibility(grid, g))
+        overlap = float(jnp.sum(sd.overlap_area(jnp.asarray(tris, jnp.float32)))) / math.pi
+        if expect is not None:
+            assert vis == pytest.approx(expect)          # the union: half the disk
+        else:                                            # the same triangle twice
+            single = float(sd.visibility(jnp.asarray(g.disk_mask()) & keep[0], g))
+            assert vis == single
+            assert overlap == pytest.approx(2 * (1 - single), abs=0.05)   # double-counted
+
+
+def test_overlap_area_against_monte_carlo():
+    rng = np.random.default_rng(2)
+    tris = rng.uniform(-1.5, 1.5, (20, 3, 2))
+    with jax.enable_x64(True):
+        area = np.asarray(sd.overlap_area(jnp.asarray(tris)))
+    pts = rng.uniform(-1, 1, (200_000, 2))
+    pts = pts[(pts ** 2).sum(1) <= 1]
+    for t, tri in enumerate(tris):
+        e = np.roll(tri, -1, 0) - tri
+        f = e[None, :, 0] * (pts[:, None, 1] - tri[None, :, 1]) - e[None, :, 1] * (
+            pts[:, None, 0] - tri[None, :, 0])
+        inside = (f >= 0).all(1) | (f <= 0).all(1)
+        assert area[t] == pytest.approx(inside.mean() * math.pi, abs=0.02)
+    full = np.array([[[-3.0, -3.0], [3.0, -3.0], [0.0, 4.0]]])
+    with jax.enable_x64(True):
+        assert float(sd.overlap_area(jnp.asarray(full))[0]) == pytest.approx(math.pi)
+
+
+def _coverage(tri, angles, g):
+    """Blocked fraction of the disk for a 2-D triangle under grid rotations [K]."""
+    c, s = np.cos(angles), np.sin(angles)
+    rot = np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], -2)   # [K, 2, 2]
+    p = np.einsum("kij,vj->kvi", rot, tri)
+    edges, ok = sd.triangle_edges_2d(jnp.asarray(p))
+    keep = sd.pack_rows(sd.polygon_keep_rows(edges, g, ok), g)
+    return 1 - np.asarray(sd.visibility(jnp.asarray(g.disk_mask()) & keep, g))
+
+
+@pytest.mark.parametrize("name", ["16x16", "31x5"])
+def test_rotation_invariance_of_expected_coverage(name):
+    g = sd.grid(name)
+    tri = np.array([[-0.9, -1.4], [1.3, 0.15], [-0.2, 1.1]])
+    k = 720
+    angles = (np.arange(k) + 0.5) * 2 * np.pi / k
+    with jax.enable_x64(True):
+        base = _coverage(tri, angles, g).mean()
+        for phi in (0.3, 1.7, 4.0):
+            c, s = math.cos(phi), math.sin(phi)
+            turned = tri @ np.array([[c, s], [-s, c]])
+            assert _coverage(turned, angles, g).mean() == pytest.approx(base, abs=3e-3)
+        exact = float(sd.overlap_area(jnp.asarray(tri[None]))[0]) / math.pi
+    # the rotated grid's mean coverage approaches the true area fraction
+    assert base == pytest.approx(exact, abs=0.03 if name == "31x5" else 0.015)
+
+
+def test_pixel_angle_deterministic_and_uniform():
+    idx = jnp.arange(1 << 16, dtype=jnp.uint32)
+    a = np.asarray(sd.pixel_angle(idx, seed=3))
+    assert np.array_equal(a, np.asarray(sd.pixel_angle(idx, seed=3)))
+    assert not np.array_equal(a, np.asarray(sd.pixel_angle(idx, seed=4)))
+    assert a.min() >= 0 and a.max() < 2 * np.pi
+    hist = np.histogram(a, bins=16, range=(0, 2 * np.pi))[0]
+    assert hist.min() > 0.9 * hist.mean()
+
+
+def test_homogeneous_edges_match_paper_projection_in_front():
+    """All vertices well in front: the exact edges equal the projected triangle's."""
+    g = sd.grid("31x7")
+    rng = np.random.default_rng(5)
+    s = 0.01
+    z = rng.uniform(1.0, 3.0, (64, 3))
+    xy = rng.uniform(-1.5, 1.5, (64, 3, 2)) * s * z[..., None]
+    d = np.concatenate([xy, z[..., None]], -1)
+    n = np.tile([0.0, 0.0, 1.0], (64, 1))
+    with jax.enable_x64(True):
+        he, hok = sd.homogeneous_edges(jnp.asarray(d), s, jnp.asarray(n), 0.0)
+        pe, pok = sd.triangle_edges_2d(sd.project_paper(jnp.asarray(d), s))
+        a = np.asarray(sd.polygon_keep_rows(he, g, hok))
+        b = np.asarray(sd.polygon_keep_rows(pe, g, pok))
+    assert np.array_equal(a, b)
+
+
+def test_homogeneous_behind_and_receiver_bias():
+    """A triangle behind the fragment never occludes; the receiver's own plane neither."""
+    g = sd.grid("16x16")
+    s = 0.05
+    behind = np.array([[[-1.0, -1.0, -1.0], [1.0, -1.0, -1.0], [0.0, 1.0, -1.0]]])
+    own = np.array([[[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]]])  # p in plane
+    tilted = own.copy()
+    tilted[..., 2] = tilted[..., 1] * 0.5              # the plane through p, tilted
+    n = np.array([[0.0, -0.4472136, 0.8944272]])        # normal of the tilted plane
+    for d in (behind, own, tilted):
+        e, ok = sd.homogeneous_edges(jnp.asarray(d, jnp.float32), s,
+                                     jnp.asarray(n, jnp.float32), 1e-4)
+        keep = np.asarray(sd.polygon_keep_rows(e, g, ok))
+        assert (keep == g.full_row).all()
+    # the paper's abs() mirrors the triangle behind into the disk
+    p = sd.project_paper(jnp.asarray(behind, jnp.float32), s)
+    e, ok = sd.triangle_edges_2d(p)
+    assert (np.asarray(sd.polygon_keep_rows(e, g, ok)) != g.full_row).any()
+
+
+def test_jit_equals_eager():
+    g = sd.grid("31x15")
+    rng = np.random.default_rng(7)
+    tris = jnp.asarray(rng.uniform(-1.5, 1.5, (32, 3, 2)), jnp.float32)
+
+    def f(t):
+        e, ok = sd.triangle_edges_2d(t)
+        return sd.pack_rows(sd.polygon_keep_rows(e, g, ok), g)
+
+    assert np.array_equal(np.asarray(f(tris)), np.asarray(jax.jit(f)(tris)))
