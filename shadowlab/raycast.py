@@ -28,7 +28,7 @@ import weakref
 import numpy as np
 
 from .scene.mesh import Scene
-from .scene.view import Camera, DirectionalLight, Light, PointLight, SphereLight, hard_light
+from .scene.view import Camera, Light, PointLight, SphereLight, hard_light
 
 DEFAULT_SHADOW_EPS = 1e-5
 _THREADS = 2          # embreex releases the GIL during a query: split rays over cores
@@ -164,7 +164,7 @@ def segments_occluded(scene: Scene, points: np.ndarray, normals: np.ndarray,
     if light_points is not None:
         origin = np.broadcast_to(light_points, points.shape)
         seg = points - origin
-        length = np.linalg.norm(seg, axis=1)
+        length = np.sqrt(np.einsum("ij,ij->i", seg, seg))
     else:
         w = np.broadcast_to(light_dirs, points.shape)
         lo, hi = scene.bounds
@@ -218,10 +218,27 @@ def shadow_epsilon(scene: Scene, shadow_eps: float = DEFAULT_SHADOW_EPS) -> floa
     return float(shadow_eps) * max(scene.diagonal, 1e-30)
 
 
+def facing_samples(gbuf: GBuffer, light: Light) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The valid samples whose camera-facing normal also faces the light.
+
+    Returns:
+        flat pixel indices int64 [S], positions float64 [S, 3], normals float64 [S, 3].
+    """
+    lh = hard_light(light).homogeneous
+    idx = np.flatnonzero(gbuf.valid)
+    p = gbuf.position.reshape(-1, 3)[idx]
+    n = gbuf.normal.reshape(-1, 3)[idx]
+    # n . (L.xyz - L.w p) > 0: the sign test needs no normalization.
+    keep = (n @ lh[:3] - lh[3] * np.einsum("ij,ij->i", n, p)) > 0
+    return idx[keep], p[keep], n[keep]
+
+
 def light_facing(gbuf: GBuffer, light: Light) -> np.ndarray:
     """bool [H, W]: valid samples whose camera-facing normal also faces the light."""
-    to_l, _ = hard_light(light).to_light(gbuf.position)
-    return gbuf.valid & (np.einsum("hwi,hwi->hw", gbuf.normal, to_l) > 0)
+    idx, _, _ = facing_samples(gbuf, light)
+    out = np.zeros(gbuf.valid.size, bool)
+    out[idx] = True
+    return out.reshape(gbuf.valid.shape)
 
 
 def reference_shadows(scene: Scene, gbuf: GBuffer, light: Light,
@@ -235,10 +252,7 @@ def reference_shadows(scene: Scene, gbuf: GBuffer, light: Light,
         bool [H, W], True = lit (valid, facing the light, segment to the light free).
     """
     hl = hard_light(light)
-    facing = light_facing(gbuf, hl)
-    idx = np.flatnonzero(facing)
-    p = gbuf.position.reshape(-1, 3)[idx]
-    n = gbuf.normal.reshape(-1, 3)[idx]
+    idx, p, n = facing_samples(gbuf, hl)
     eps = shadow_epsilon(scene, shadow_eps)
     if isinstance(hl, PointLight):
         blocked = segments_occluded(scene, p, n, light_points=hl.position[None], eps=eps)

@@ -1,4 +1,3 @@
-import numpy as np
 import pytest
 
 from shadowlab.jaxcache import enable_compilation_cache

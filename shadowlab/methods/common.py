@@ -8,9 +8,9 @@ import dataclasses
 import jax
 import numpy as np
 
-from ..raycast import GBuffer, light_facing, shadow_epsilon
+from ..raycast import GBuffer, facing_samples, shadow_epsilon
 from ..scene.mesh import Scene
-from ..scene.view import Light, hard_light
+from ..scene.view import Light
 
 
 def bucket(n: int, minimum: int = 1024, steps: int = 1) -> int:
@@ -82,10 +82,8 @@ class Samples:
 
 def view_samples(gbuf: GBuffer, light: Light) -> Samples:
     """Valid pixels whose camera-facing normal faces the light (all others are unlit)."""
-    facing = light_facing(gbuf, hard_light(light))
-    idx = np.flatnonzero(facing)
-    return Samples(idx, gbuf.position.reshape(-1, 3)[idx], gbuf.normal.reshape(-1, 3)[idx],
-                   gbuf.valid.shape)
+    idx, position, normal = facing_samples(gbuf, light)
+    return Samples(idx, position, normal, gbuf.valid.shape)
 
 
 BIAS_MODES = ("receiver", "cap")

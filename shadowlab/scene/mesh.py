@@ -10,6 +10,7 @@ reported, never repaired, because the shadow algorithms must cope with them.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from pathlib import Path
 
@@ -97,16 +98,21 @@ class Scene:
     def num_objects(self) -> int:
         return len(self.object_names)
 
-    @property
+    @functools.cached_property
     def triangles(self) -> np.ndarray:
-        """float64 [m, 3, 3]: the corner positions of every triangle."""
-        return self.vertices[self.faces]
+        """float64 [m, 3, 3]: the corner positions of every triangle (computed once,
+        read-only)."""
+        out = self.vertices[self.faces]
+        out.flags.writeable = False
+        return out
 
-    @property
+    @functools.cached_property
     def bounds(self) -> np.ndarray:
         """float64 [2, 3]: the axis-aligned bounding box (min, max) of used vertices."""
         used = self.vertices[np.unique(self.faces)]
-        return np.stack([used.min(axis=0), used.max(axis=0)])
+        out = np.stack([used.min(axis=0), used.max(axis=0)])
+        out.flags.writeable = False
+        return out
 
     @property
     def diagonal(self) -> float:
