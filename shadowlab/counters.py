@@ -27,6 +27,33 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("tests_per_pixel", "map", "inclusion tests performed for each pixel"),
     Counter("shadowed", "int", "samples found inside at least one shadow volume"),
     Counter("lit", "int", "pixels reported lit"),
+    # per-triangle shadow volumes over a hierarchy (clustered_ptsv, ptsv)
+    Counter("front_face_culled", "int", "light-facing triangles of closed objects dropped by "
+            "front-face culling"),
+    Counter("node_tests", "int", "existing child nodes tested against a shadow volume"),
+    Counter("trivial_accepts", "int", "nodes found entirely inside a shadow volume"),
+    Counter("trivial_rejects", "int", "nodes found entirely outside a shadow volume (by a "
+            "volume plane or an extra culling plane)"),
+    Counter("extra_plane_rejects", "int", "nodes rejected only by the extra culling planes"),
+    Counter("leaf_visits", "int", "(triangle, leaf) jobs whose tile samples were tested"),
+    Counter("ta_shadowed", "int", "samples shadowed only through trivially accepted nodes"),
+    Counter("jobs", "int", "traversal jobs: triangles, plus (triangle, node) jobs in two-pass"),
+    Counter("pass2_jobs", "int", "(triangle, node) jobs created at the expand level"),
+    Counter("job_iterations_mean", "float", "mean traversal iterations (node visits) per job"),
+    Counter("job_iterations_max", "int", "largest traversal iterations of one job"),
+    Counter("job_iterations_top", "array", "the 1024 largest per-job iteration counts, "
+            "descending, zero-padded (int [1024])"),
+    Counter("frontier_max", "int", "largest traversal frontier (jobs at one level)"),
+    Counter("clusters", "int", "existing leaf nodes (clusters or non-empty leaf tiles)"),
+    Counter("hierarchy_nodes", "int", "existing nodes of the hierarchy, all levels below the root"),
+    Counter("hierarchy_bytes", "int", "memory of child masks plus the chosen box storage"),
+    Counter("saturated_samples", "int", "samples beyond the last depth slice of the key"),
+    # stencil shadow volumes (zpass, zfail)
+    Counter("stencil_updates", "int", "stencil-buffer updates: shadow-quad and cap fragments "
+            "that pass (zpass) or fail (zfail) the depth test"),
+    Counter("stencil_updates_per_pixel", "map", "stencil updates at each pixel"),
+    Counter("eye_in_volumes", "int", "shadow volumes containing the eye (zpass initialises "
+            "the stencil with this count)"),
     # TOP-tree methods (psv, d_psv, d_stackless, d_hybrid; docs/psv.md)
     Counter("visited_nodes", "int", "TOP-tree node visits summed over samples (a visit reads "
             "one node; a depth-test skip and a stackless second visit count as visits)"),

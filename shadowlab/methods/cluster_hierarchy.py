@@ -1,0 +1,424 @@
+"""View-sample hierarchies for per-triangle shadow volumes (Sintorn et al. 2014 and 2011).
+
+Both hierarchies are 32-ary trees over uint32 keys, stored as a *full tree*: level
+``l`` (0 = root) has ``nodes(l)`` nodes, node ``i`` of level ``l`` has children
+``32 i + c`` (c = 0..31) on level ``l + 1``, and a node's index is ``key >> shift(l)``.
+Levels ``0 .. D-1`` are inner nodes stored as uint32 *child masks* (bit c set = child
+c exists); level ``D`` holds the leaves, whose existence is a bit of their parent.
+
+- ``cluster`` tree (2014): leaves are clusters, keys from eq. (1): the 8 x 8 pixel tile
+  (x', y') and an exponential depth slice z', Morton-interleaved
+  (:func:`shadowlab.geometry.morton.round_robin_layout`). 1024 x 1024 gives the paper's
+  23-bit key (7 + 7 + 9 bits), D = 5 mask levels and a 3-bit root word.
+- ``ptsv`` tree (2011): leaves are 8 x 4 pixel tiles, inner nodes alternate 4 x 8 and
+  8 x 4 children (2D keys, :func:`~shadowlab.geometry.morton.grouped_layout`), and every
+  node stores the depth range of its samples (a hierarchical min/max depth buffer).
+
+Node bounds live in *post-perspective space* ``(nx, ny, q)``: NDC x and y and
+``q = 1 / w`` (w = view depth). NDC z is an affine function of q, so these are the
+paper's clip-space AABBs, parametrised so that a clip-space plane is an affine
+function of (nx, ny, q) and far depths keep their float resolution (see
+``clustered_ptsv.post_perspective_planes``). Bounds are *implicit* (from the key) or
+*explicit* (min / max over the node's samples), in one of two storage layouts:
+``full`` (an array over every node of a level, the paper's first version) or
+``compact`` (an int32 pointer per node into a list of the existing nodes' boxes, the
+paper's Section 3 variant). Every box is padded outwards by a few hundred ulps so
+it contains its samples' coordinates in the working precision.
+
+Each node also stores ``smin``, the minimum over its samples of the receiver-bias
+scale (``common.bias_terms``); trivial accept and cap rejection need it to be
+exact with the ``"receiver"`` bias (with ``"cap"`` it is 1). This is not in the
+paper, whose plain cap offset needs no per-sample data.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..geometry.morton import axis_bits, decode, encode, grouped_layout, round_robin_layout
+
+FANOUT_BITS = 5
+DEPTH_SLICE_MODES = ("clamp", "scaled")
+
+
+def _bits_for(n: int) -> int:
+    return max(0, int(n - 1).bit_length())
+
+
+def pad_fraction(dtype) -> float:
+    """Relative outward padding of node boxes: 256 ulps of the working precision."""
+    return 256 * float(np.finfo(dtype).eps)
+
+
+@dataclasses.dataclass(frozen=True)
+class TreeLayout:
+    """Static description of a view-sample tree (hashable: used as a jit static arg).
+
+    Attributes:
+        kind: "cluster" (2014) or "ptsv" (2011).
+        width, height: image size in pixels.
+        tile: (tw, th) leaf tile size in pixels.
+        bits: key bits per axis: (x, y, z) for clusters, (x, y) for PTSV.
+        layout: axis of each key bit, LSB first.
+        near, far: the camera's clip distances (world units).
+        log_ratio: ln of the depth-slice ratio r (slice k covers depths
+            [near r^k, near r^(k+1))); 0 for PTSV.
+        depth_slices: "clamp" (eq. 1, the top slice absorbs everything farther) or
+            "scaled" (r enlarged so that far fits in the slices).
+        saturates: eq. (1) needs more slices than the key holds for [near, far].
+        tan_half_fov: tan(fov_y / 2).
+        p00, p11: the projection's x and y scales (f / aspect, f).
+    """
+
+    kind: str
+    width: int
+    height: int
+    tile: tuple[int, int]
+    bits: tuple[int, ...]
+    layout: tuple[int, ...]
+    near: float
+    far: float
+    log_ratio: float
+    depth_slices: str
+    saturates: bool
+    p00: float
+    p11: float
+
+    @property
+    def key_bits(self) -> int:
+        return len(self.layout)
+
+    @property
+    def levels(self) -> int:
+        """D: the number of mask levels (the leaves are level D)."""
+        return max(1, math.ceil(self.key_bits / FANOUT_BITS))
+
+    @property
+    def tiles_x(self) -> int:
+        return -(-self.width // self.tile[0])
+
+    @property
+    def tiles_y(self) -> int:
+        return -(-self.height // self.tile[1])
+
+    @property
+    def tile_pixels(self) -> int:
+        return self.tile[0] * self.tile[1]
+
+    @property
+    def slices(self) -> int:
+        return 1 << self.bits[2] if self.kind == "cluster" else 1
+
+    def shift(self, level: int) -> int:
+        """Node index at ``level`` = key >> shift(level)."""
+        return FANOUT_BITS * (self.levels - level)
+
+    def nodes(self, level: int) -> int:
+        return 1 << max(0, self.key_bits - self.shift(level))
+
+    def extent_bits(self, level: int, axis: int) -> int:
+        """log2 of a level-``level`` node's extent along ``axis`` in leaf units."""
+        return axis_bits(self.layout, axis, below=min(self.shift(level), self.key_bits))
+
+
+def cluster_layout(camera, z_bits: int = 0, depth_slices: str = "clamp",
+                   fov_y_deg: float | None = None) -> TreeLayout:
+    """The 2014 cluster key layout for ``camera`` (resolution, near, far, fov).
+
+    ``z_bits = 0`` picks the paper's choice: two more depth bits than the larger of the
+    x / y tile bits (9 at 1024 x 1024, 10 for 1080p, at most 32 key bits in total).
+    The slice ratio is eq. (1): r = 1 + 2 tan(fov_y / 2) / S_y, S_y the tile rows.
+    """
+    if depth_slices not in DEPTH_SLICE_MODES:
+        raise ValueError(f"depth_slices must be one of {DEPTH_SLICE_MODES}")
+    w, h = camera.resolution
+    bx, by = _bits_for(-(-w // 8)), _bits_for(-(-h // 8))
+    bz = z_bits or min(max(bx, by) + 2, 32 - bx - by)
+    if bx + by + bz > 32:
+        raise ValueError(f"cluster key needs {bx + by + bz} bits (> 32) at {w}x{h} with "
+                         f"z_bits={bz}")
+    fov = camera.fov_y_deg if fov_y_deg is None else fov_y_deg
+    tan_half = math.tan(math.radians(fov) / 2)
+    sy = -(-h // 8)
+    log_r = math.log1p(2 * tan_half / sy)
+    needed = math.log(camera.far / camera.near) / log_r
+    saturates = needed > (1 << bz)
+    if depth_slices == "scaled" and saturates:
+        log_r = math.log(camera.far / camera.near) / (1 << bz)
+    f = 1.0 / tan_half
+    return TreeLayout("cluster", w, h, (8, 8), (bx, by, bz), round_robin_layout((bx, by, bz)),
+                      float(camera.near), float(camera.far), float(log_r), depth_slices,
+                      bool(saturates), f / camera.aspect, f)
+
+
+def ptsv_layout(camera) -> TreeLayout:
+    """The 2011 PTSV tree: 8 x 4 leaf tiles, children alternating 4 x 8 and 8 x 4."""
+    w, h = camera.resolution
+    bx, by = _bits_for(-(-w // 8)), _bits_for(-(-h // 4))
+    layout = grouped_layout((bx, by), ((2, 3), (3, 2)))
+    f = 1.0 / math.tan(math.radians(camera.fov_y_deg) / 2)
+    return TreeLayout("ptsv", w, h, (8, 4), (bx, by), layout, float(camera.near),
+                      float(camera.far), 0.0, "clamp", False, f / camera.aspect, f)
+
+
+# --------------------------------------------------------------------------- samples
+
+def sample_coords(tree: TreeLayout, position, view):
+    """Post-perspective coordinates (nx, ny, q) [S, 3] of world points [S, 3].
+
+    ``view`` [4, 4] is the world -> view matrix; computed in the dtype of ``position``.
+    """
+    v = position @ view[:3, :3].T + view[:3, 3]
+    w = -v[:, 2]
+    q = 1 / w
+    return jnp.stack([tree.p00 * v[:, 0] * q, tree.p11 * v[:, 1] * q, q], axis=1)
+
+
+def sample_keys(tree: TreeLayout, px, py, coords):
+    """uint32 keys [S] of samples at pixel (px, py) [S] (int32) with coords [S, 3].
+
+    Cluster keys: (px // 8, py // 8, z') with z' = floor(ln(w / near) / ln r) clamped
+    to [0, slices - 1]; PTSV keys: (px // 8, py // 4). Also returns bool [S], the
+    samples whose unclamped z' exceeds the top slice (saturated; always False for PTSV).
+    """
+    tx = (px // tree.tile[0]).astype(jnp.uint32)
+    ty = (py // tree.tile[1]).astype(jnp.uint32)
+    if tree.kind == "ptsv":
+        return encode((tx, ty), tree.layout, xp=jnp), jnp.zeros(px.shape, bool)
+    w = 1 / coords[:, 2]
+    z = jnp.floor(jnp.log(w / tree.near) / tree.log_ratio)
+    top = tree.slices - 1
+    saturated = z > top
+    zi = jnp.clip(z, 0, top).astype(jnp.uint32)
+    return encode((tx, ty, zi), tree.layout, xp=jnp), saturated
+
+
+def sample_keys_numpy(tree: TreeLayout, px, py, depth) -> np.ndarray:
+    """Plain NumPy loop version of :func:`sample_keys` (float64 depth), for tests."""
+    out = np.zeros(len(px), np.uint32)
+    for i in range(len(px)):
+        c = [px[i] // tree.tile[0], py[i] // tree.tile[1]]
+        if tree.kind == "cluster":
+            z = math.floor(math.log(depth[i] / tree.near) / tree.log_ratio)
+            c.append(min(max(z, 0), tree.slices - 1))
+        key, used = 0, [0] * len(c)
+        for bit, a in enumerate(tree.layout):
+            key |= ((c[a] >> used[a]) & 1) << bit
+            used[a] += 1
+        out[i] = key
+    return out
+
+
+# --------------------------------------------------------------------------- bounds
+
+def implicit_bounds(tree: TreeLayout, level: int, node, dtype):
+    """Implicit boxes (lo, hi), each [..., 3], of level-``level`` nodes ``node`` (uint32).
+
+    x / y from the node's tile range, q from its depth-slice range (the top slice is
+    open-ended: q down to 0). For PTSV the q range is [0, 1 / near] (explicit bounds
+    replace it). Padded outwards by :func:`pad_fraction`.
+    """
+    shift = min(tree.shift(level), tree.key_bits)
+    base = jnp.asarray(node).astype(jnp.uint32) << shift
+    coords = decode(base, tree.layout, len(tree.bits), xp=jnp)
+    tw, th = tree.tile
+    ex = float(1 << tree.extent_bits(level, 0))
+    ey = float(1 << tree.extent_bits(level, 1))
+    x0 = coords[0].astype(dtype)
+    y0 = coords[1].astype(dtype)
+    nx_lo = 2 * tw * x0 / tree.width - 1
+    nx_hi = jnp.minimum(2 * tw * (x0 + ex) / tree.width - 1, 1)
+    ny_hi = 1 - 2 * th * y0 / tree.height
+    ny_lo = jnp.maximum(1 - 2 * th * (y0 + ey) / tree.height, -1)
+    if tree.kind == "cluster":
+        ez = 1 << tree.extent_bits(level, 2)
+        z0 = coords[2].astype(dtype)
+        q_hi = jnp.exp(-tree.log_ratio * z0) / tree.near
+        top = coords[2].astype(jnp.int32) + ez >= tree.slices
+        q_lo = jnp.where(top, 0, jnp.exp(-tree.log_ratio * (z0 + ez)) / tree.near)
+    else:
+        q_hi = jnp.full(nx_lo.shape, 1 / tree.near, dtype)
+        q_lo = jnp.zeros(nx_lo.shape, dtype)
+    lo = jnp.stack([nx_lo, ny_lo, q_lo], axis=-1).astype(dtype)
+    hi = jnp.stack([nx_hi, ny_hi, q_hi], axis=-1).astype(dtype)
+    return pad_box(lo, hi, dtype)
+
+
+def pad_box(lo, hi, dtype):
+    """Boxes grown by ``pad_fraction`` of their coordinates' magnitude plus a tiny floor."""
+    pad = pad_fraction(dtype)
+    tiny = float(np.finfo(dtype).tiny) * 1e6
+    return (lo - (jnp.abs(lo) * pad + tiny)).astype(dtype), (hi + (jnp.abs(hi) * pad + tiny)).astype(dtype)
+
+
+# --------------------------------------------------------------------------- build
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Hierarchy:
+    """A built tree (device arrays).
+
+    Attributes:
+        tree: the static layout.
+        masks: per mask level l = 0..D-1, uint32 [nodes(l)] child masks.
+        exists: per level l = 1..D (index l - 1), bool [nodes(l)].
+        counts: per level l = 1..D, the number of existing nodes (host ints).
+        storage: "full" or "compact".
+        ptr: per level 1..D, int32 [nodes(l)] index into the compact list (-1 if the
+            node does not exist); None for "full".
+        lo, hi: per level 1..D, float [capacity_l, 3] explicit boxes (padded); for
+            "full" capacity_l = nodes(l), for "compact" a power-of-two bucket of counts.
+        smin: per level 1..D, float [capacity_l], the minimum bias scale of the node's
+            samples.
+    """
+
+    tree: TreeLayout
+    masks: tuple
+    exists: tuple
+    counts: tuple
+    storage: str
+    ptr: tuple | None
+    lo: tuple
+    hi: tuple
+    smin: tuple
+
+    @property
+    def clusters(self) -> int:
+        return int(self.counts[-1])
+
+
+def _pack_masks(exists_child, nodes_parent: int):
+    """uint32 [nodes_parent] words from bool child existence (padded to 32 per parent)."""
+    n = exists_child.shape[0]
+    flat = jnp.zeros(nodes_parent * 32, bool).at[:n].set(exists_child)
+    bits = flat.reshape(nodes_parent, 32).astype(jnp.uint32)
+    weights = jnp.left_shift(jnp.uint32(1), jnp.arange(32, dtype=jnp.uint32))
+    return jnp.sum(bits * weights, axis=1, dtype=jnp.uint32)
+
+
+@functools.partial(jax.jit, static_argnames=("tree",))
+def _existence(tree: TreeLayout, keys, valid):
+    """Per level 1..D bool existence and per level 0..D-1 child masks."""
+    d = tree.levels
+    leaf = jnp.zeros(tree.nodes(d), bool).at[jnp.where(valid, keys, tree.nodes(d))].set(
+        True, mode="drop")
+    exists = [leaf]
+    for level in range(d - 1, 0, -1):
+        child = exists[0]
+        exists.insert(0, jnp.any(child.reshape(tree.nodes(level), -1), axis=1))
+    masks = [_pack_masks(exists[level], tree.nodes(level)) for level in range(d)]
+    return tuple(masks), tuple(exists)
+
+
+@functools.partial(jax.jit, static_argnames=("tree", "storage", "caps"))
+def _explicit(tree: TreeLayout, storage: str, caps: tuple, keys, valid, coords, scale, exists):
+    """Explicit boxes and smin per level 1..D (leaf level from samples, then upwards)."""
+    d = tree.levels
+    dtype = coords.dtype
+    big = jnp.asarray(np.finfo(dtype).max, dtype)
+    ptrs, los, his, smins = [], [], [], []
+    for level in range(1, d + 1):
+        if storage == "compact":
+            ptrs.append(jnp.where(exists[level - 1],
+                                  jnp.cumsum(exists[level - 1], dtype=jnp.int32) - 1, -1))
+        else:
+            ptrs.append(None)
+    # leaf level from the samples
+    cap = caps[d - 1]
+    idx = keys.astype(jnp.int32) if storage == "full" else ptrs[d - 1][keys.astype(jnp.int32)]
+    idx = jnp.where(valid, idx, cap)
+    lo = jnp.full((cap, 3), big).at[idx].min(coords, mode="drop")
+    hi = jnp.full((cap, 3), -big).at[idx].max(coords, mode="drop")
+    sm = jnp.full((cap,), big).at[idx].min(scale, mode="drop")
+    los.append(lo), his.append(hi), smins.append(sm)
+    # inner levels from their children
+    for level in range(d - 1, 0, -1):
+        cap = caps[level - 1]
+        if storage == "full":
+            n = tree.nodes(level)
+            clo = los[0].reshape(n, -1, 3)
+            lo = jnp.min(clo, axis=1)
+            hi = jnp.max(his[0].reshape(n, -1, 3), axis=1)
+            sm = jnp.min(smins[0].reshape(n, -1), axis=1)
+        else:
+            # child compact entries are in key order; parent of entry e: key(e) >> 5
+            child_keys = jnp.nonzero(exists[level], size=caps[level], fill_value=0)[0]
+            ok = jnp.arange(caps[level]) < jnp.sum(exists[level])
+            parent = ptrs[level - 1][child_keys >> FANOUT_BITS]
+            parent = jnp.where(ok, parent, cap)
+            lo = jnp.full((cap, 3), big).at[parent].min(los[0], mode="drop")
+            hi = jnp.full((cap, 3), -big).at[parent].max(his[0], mode="drop")
+            sm = jnp.full((cap,), big).at[parent].min(smins[0], mode="drop")
+        los.insert(0, lo), his.insert(0, hi), smins.insert(0, sm)
+    padded = [pad_box(lo, hi, dtype) for lo, hi in zip(los, his)]
+    return (tuple(ptrs) if storage == "compact" else None, tuple(p[0] for p in padded),
+            tuple(p[1] for p in padded), tuple(smins))
+
+
+def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact") -> Hierarchy:
+    """Build masks, existence and explicit bounds over samples.
+
+    Args:
+        keys: uint32 [S] sample keys; valid: bool [S] (False for padding rows).
+        coords: [S, 3] post-perspective coordinates; scale: [S] bias scale.
+        storage: "full" or "compact" (how explicit boxes are stored).
+    """
+    masks, exists = _existence(tree, keys, valid)
+    counts = tuple(int(c) for c in jax.device_get([jnp.sum(e) for e in exists]))
+    if storage == "full":
+        caps = tuple(tree.nodes(level) for level in range(1, tree.levels + 1))
+    else:
+        caps = tuple(max(32, 1 << max(0, (c - 1).bit_length())) for c in counts)
+    ptr, lo, hi, smin = _explicit(tree, storage, caps, keys, valid, coords, scale, exists)
+    return Hierarchy(tree, masks, exists, counts, storage, ptr, lo, hi, smin)
+
+
+def masks_numpy(tree: TreeLayout, keys: np.ndarray) -> list[np.ndarray]:
+    """Plain loop version of the child masks (levels 0..D-1), for tests."""
+    d = tree.levels
+    masks = [np.zeros(tree.nodes(level), np.uint32) for level in range(d)]
+    for k in np.unique(keys):
+        k = int(k)
+        for level in range(d):
+            node = k >> tree.shift(level)
+            child = (k >> tree.shift(level + 1)) & 31
+            masks[level][node] |= np.uint32(1 << child)
+    return masks
+
+
+# --------------------------------------------------------------------------- memory
+
+def memory_report(tree: TreeLayout, existing: int | None = None) -> dict:
+    """Bytes each layout needs (the paper's Section 3 figures).
+
+    Counts every node of levels 0..D (the leaves included). Masks: one bit per node
+    (= a uint32 word per inner node); full bounds: six float32 per node; compact:
+    an int32 pointer per node plus six float32 per existing box (``existing``, or the
+    paper's worst case of one box per pixel; the inner levels add at most 1/32 + ...
+    of that again).
+    """
+    d = tree.levels
+    per_level = [tree.nodes(level) for level in range(d + 1)]
+    total = sum(per_level)
+    worst = min(per_level[-1], tree.width * tree.height)      # the paper: one box per pixel
+    box = 6 * 4
+    out = {"levels": d + 1, "key_bits": tree.key_bits, "nodes_per_level": per_level,
+           "total_nodes": total,
+           "mask_bytes": 4 * sum(per_level[:-1]),
+           "full_bounds_bytes": box * total,
+           "pointer_bytes": 4 * total,
+           "compact_worst_bytes": box * worst}
+    if existing is not None:
+        out["compact_bytes"] = box * int(existing)
+    return out
+
+
+def decode_np(leaf: int, tree: TreeLayout) -> tuple[int, int]:
+    """(tile x, tile y) of a leaf key (plain Python, for tests and analysis)."""
+    c = decode(np.uint32(leaf), tree.layout, len(tree.bits))
+    return int(c[0]), int(c[1])

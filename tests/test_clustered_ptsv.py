@@ -1,0 +1,273 @@
+"""clustered_ptsv / ptsv: hierarchy vs loops, planes, traversal counters vs a plain
+per-triangle loop, and exactness against the reference for option combinations."""
+
+import functools
+
+import jax
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import shadowlab as sl
+from shadowlab.geometry.planes import shadow_volume_planes, to_clip_space
+from shadowlab.methods import cluster_hierarchy as ch
+from shadowlab.methods.clustered_ptsv import post_perspective_planes, run_traversal_method
+from shadowlab.scene.procedural import default_view
+
+RES = 64
+SMALL = {"gate": {"trees": 4, "leaves_per_tree": 60, "bars": 5},
+         "sphere_grid": {"n": 3, "triangles_per_sphere": 120},
+         "fuzzy": {"triangles": 1500, "clusters": 4},
+         "terrain": {"size": 16}, "blobs": {"grid": 16, "blobs": 3},
+         "soup": {"count": 150}}
+
+
+@functools.lru_cache(maxsize=None)
+def _setup(name, res=RES):
+    scene = sl.load_scene(name, **SMALL[name])
+    view = default_view(name, scene, **SMALL[name])
+    cam = view.camera.replace(resolution=(res, res))
+    gbuf = sl.render_gbuffer(scene, cam)
+    truth = sl.reference_shadows(scene, gbuf, view.light)
+    return scene, gbuf, view.light, truth
+
+
+def _mismatches(res, truth, gbuf):
+    return int(((res.lit != truth) & gbuf.valid).sum())
+
+
+# Options covering every value of every option (a covering set, not the full product).
+COMBOS = [
+    dict(),
+    dict(bounds="implicit", culling_planes=False),
+    dict(bounds="implicit", passes=2, expand_level=2, prune=True, wave=16),
+    dict(storage="full", passes=2, expand_level=5, front_face_culling=True),
+    dict(bias="cap", leaf_samples="cluster", depth_slices="scaled"),
+    dict(prune=True, wave=8, culling_planes=False, z_bits=4),
+]
+
+
+EXACT_COMBOS = [c for c in COMBOS if c.get("bias") != "cap"]
+
+
+@pytest.mark.parametrize("i,name", list(enumerate(sorted(SMALL))))
+def test_clustered_equals_reference(i, name, precision):
+    # every scene runs two combos; over the six scenes every combo runs at least twice
+    scene, gbuf, light, truth = _setup(name)
+    for opts in (EXACT_COMBOS[i % 5], EXACT_COMBOS[(i + 2) % 5]):
+        res = sl.compute_shadows(scene, gbuf, light, method="clustered_ptsv",
+                                 precision=precision, **opts)
+        assert _mismatches(res, truth, gbuf) == 0, (name, opts)
+
+
+@pytest.mark.parametrize("name", ["gate", "soup", "sphere_grid"])
+def test_cap_bias_equals_brute_force(name, precision):
+    scene, gbuf, light, _ = _setup(name)
+    bf = sl.compute_shadows(scene, gbuf, light, method="brute_force", precision=precision,
+                            bias="cap")
+    for method, opts in [("clustered_ptsv", COMBOS[4]), ("ptsv", {"bias": "cap"})]:
+        res = sl.compute_shadows(scene, gbuf, light, method=method, precision=precision, **opts)
+        assert np.array_equal(res.lit, bf.lit), (name, method)
+
+
+@pytest.mark.parametrize("i,name", list(enumerate(sorted(SMALL))))
+def test_ptsv_equals_reference(i, name, precision):
+    scene, gbuf, light, truth = _setup(name)
+    for opts in [dict(), dict(culling_planes=False, passes=2, prune=True, wave=16,
+                              front_face_culling=True)][i % 2:]:
+        res = sl.compute_shadows(scene, gbuf, light, method="ptsv", precision=precision, **opts)
+        assert _mismatches(res, truth, gbuf) == 0, (name, opts)
+
+
+# --------------------------------------------------------------------------- hierarchy
+
+def _samples_of(name, res=RES):
+    scene, gbuf, light, _ = _setup(name, res)
+    from shadowlab.methods.common import view_samples
+    return scene, gbuf, light, view_samples(gbuf, light)
+
+
+def test_keys_masks_and_boxes_against_loops():
+    scene, gbuf, light, smp = _samples_of("gate")
+    cam = gbuf.camera
+    tree = ch.cluster_layout(cam)
+    w = gbuf.shape[1]
+    px, py = smp.index % w, smp.index // w
+    with jax.enable_x64(True):
+        coords = ch.sample_coords(tree, jnp.asarray(smp.position), jnp.asarray(cam.view_matrix()))
+        keys, _ = ch.sample_keys(tree, jnp.asarray(px), jnp.asarray(py), coords)
+        keys = np.asarray(keys)
+        depth = gbuf.depth.reshape(-1)[smp.index]
+        ref = ch.sample_keys_numpy(tree, px, py, depth)
+        # float64 log in JAX vs math.log: equal except exactly at slice boundaries
+        assert np.mean(keys == ref) > 0.999
+        valid = jnp.ones(len(keys), bool)
+        scale = jnp.asarray(np.linspace(0.5, 2, len(keys)))
+        for storage in ("full", "compact"):
+            h = ch.build(tree, jnp.asarray(keys), valid, coords, scale, storage)
+            for lvl, (a, b) in enumerate(zip(h.masks, ch.masks_numpy(tree, keys))):
+                np.testing.assert_array_equal(np.asarray(a), b, err_msg=f"level {lvl}")
+            # boxes (leaf level and one inner level) against a loop over samples
+            c = np.asarray(coords)
+            for lvl in (tree.levels, 2):
+                node = keys >> tree.shift(lvl)
+                lo, hi = np.asarray(h.lo[lvl - 1]), np.asarray(h.hi[lvl - 1])
+                sm = np.asarray(h.smin[lvl - 1])
+                ptr = None if h.ptr is None else np.asarray(h.ptr[lvl - 1])
+                for k in np.unique(node)[:50]:
+                    sel = node == k
+                    i = k if ptr is None else ptr[k]
+                    assert np.all(lo[i] <= c[sel].min(0)) and np.all(hi[i] >= c[sel].max(0))
+                    np.testing.assert_allclose(lo[i], c[sel].min(0), rtol=1e-9, atol=1e-12)
+                    np.testing.assert_allclose(hi[i], c[sel].max(0), rtol=1e-9, atol=1e-12)
+                    assert sm[i] == np.asarray(scale)[sel].min()
+            # implicit boxes contain the samples' coordinates
+            for lvl in range(1, tree.levels + 1):
+                ilo, ihi = ch.implicit_bounds(tree, lvl, jnp.asarray(keys >> tree.shift(lvl)),
+                                              np.float64)
+                assert np.all(np.asarray(ilo) <= c) and np.all(np.asarray(ihi) >= c), lvl
+
+
+def test_memory_report_matches_the_paper():
+    cam = sl.Camera(eye=(0, 0, 5), target=(0, 0, 0), near=0.1, far=1000,
+                    resolution=(1024, 1024))
+    tree = ch.cluster_layout(cam, z_bits=9)
+    assert tree.key_bits == 23 and tree.levels == 5
+    rep = ch.memory_report(tree)
+    assert abs(rep["total_nodes"] / 1e6 - 8.65) < 0.01
+    assert abs(rep["mask_bytes"] / 2**20 - 1.03) < 0.05            # ~1 MB of masks
+    assert abs(rep["full_bounds_bytes"] / 2**20 - 198) < 1          # 198 MB of boxes
+    assert abs(rep["pointer_bytes"] / 2**20 - 33) < 0.1             # 33 MB of pointers
+    assert abs(rep["compact_worst_bytes"] / 2**20 - 25) < 1.5       # worst case ~25 MB
+    hd = ch.cluster_layout(cam.replace(resolution=(1920, 1080)))
+    assert hd.bits == (8, 8, 10) and hd.key_bits == 26              # one more bit each
+    assert tree.saturates and ch.cluster_layout(cam, depth_slices="scaled").log_ratio > \
+        tree.log_ratio
+
+
+def test_post_perspective_planes_orientation_and_shared_edges(precision):
+    dtype = np.float64 if precision == "float64" else np.float32
+    rng = np.random.default_rng(3)
+    cam = sl.Camera(eye=(1, 2, 9), target=(0, 0, 0), near=0.5, far=60, resolution=(64, 48))
+    a, b = rng.uniform(-2, 2, (2, 3))
+    tris = np.array([[a, b, rng.uniform(-2, 2, 3)], [b, a, rng.uniform(-2, 2, 3)]])
+    tris = np.concatenate([tris, rng.uniform(-2, 2, (30, 3, 3))])
+    light = np.array([3.0, 9.0, 1.0, 1.0])
+    from shadowlab.methods.common import precision_mode
+    with precision_mode(precision):
+        planes, valid = shadow_volume_planes(jnp.asarray(tris, dtype), jnp.asarray(light, dtype))
+        inv_view = jnp.asarray(np.linalg.inv(cam.view_matrix()), dtype)
+        f = 1 / np.tan(np.radians(cam.fov_y_deg) / 2)
+        g, tol = post_perspective_planes(planes, inv_view, jnp.asarray(2.0, dtype),
+                                         jnp.asarray(3.0, dtype), extra="culling",
+                                         p00=f / cam.aspect, p11=f)
+        g = np.asarray(g, np.float64)
+    planes = np.asarray(planes, np.float64)
+    # same sign as the world plane and as to_clip_space, at random points in the frustum
+    pts = rng.uniform(-3, 3, (200, 3))
+    v = pts @ cam.view_matrix()[:3, :3].T + cam.view_matrix()[:3, 3]
+    keep = -v[:, 2] > cam.near
+    pts, v = pts[keep], v[keep]
+    wq = -v[:, 2]
+    npp = np.stack([f / cam.aspect * v[:, 0] / wq, f * v[:, 1] / wq, 1 / wq, np.ones(len(wq))], 1)
+    world = np.einsum("tpi,si->tsp", planes[..., :3], pts) + planes[None, :, :, 3].transpose(1, 0, 2)
+    post = np.einsum("tpi,si->tsp", g[:, :4], npp) * wq[None, :, None]
+    np.testing.assert_allclose(post, world, rtol=1e-4, atol=1e-4 if dtype == np.float32 else 1e-9)
+    clip = np.asarray(to_clip_space(jnp.asarray(planes), jnp.asarray(cam.view_projection())))
+    hom = np.concatenate([pts, np.ones((len(pts), 1))], 1) @ cam.view_projection().T
+    np.testing.assert_allclose(np.einsum("tpi,si->tsp", clip, hom), world, rtol=1e-4, atol=1e-4)
+    # shared edge: exactly negated world planes give exactly negated post-perspective rows
+    if np.asarray(valid)[:2].all() and np.array_equal(planes[0, 0], -planes[1, 0]):
+        np.testing.assert_array_equal(g[0, 0], -g[1, 0])
+    # extra culling planes: every point inside the volume is inside them
+    inside = np.all(world[..., :3] >= 0, -1) & (world[..., 3] < 0)
+    extra = np.einsum("tpi,si->tsp", g[:, 4:], npp)
+    assert np.all(extra[inside] >= -1e-5)
+
+
+# --------------------------------------------------------------------------- traversal
+
+def _loop_traversal(det):
+    """Algorithm 1 as a plain per-triangle depth-first loop (float64, no pruning)."""
+    tree, h = det["tree"], det["hierarchy"]
+    masks = [np.asarray(m) for m in h.masks]
+    lo = [np.asarray(x, np.float64) for x in h.lo]
+    hi = [np.asarray(x, np.float64) for x in h.hi]
+    sm = [np.asarray(x, np.float64) for x in h.smin]
+    ptr = None if h.ptr is None else [np.asarray(x) for x in h.ptr]
+    g, tol = np.asarray(det["g"], np.float64), np.asarray(det["tol"], np.float64)
+    bound = np.asarray(det["bound"], np.float64)
+    table = np.asarray(det["table"])
+    n_s = int(det["sample_count"])
+    u = np.finfo(np.float64).eps
+    d = tree.levels
+    out = dict(node_tests=0, trivial_accepts=0, trivial_rejects=0, leaf_visits=0, tests=0)
+    iters = []
+    for t in det["casters"]:
+        count, stack = 0, [(0, 0)]
+        while stack:
+            level, node = stack.pop()
+            count += 1
+            if level == d:
+                out["leaf_visits"] += 1
+                x, y = [int(c) for c in ch.decode_np(node, tree)]
+                out["tests"] += int(np.sum(table[y * tree.tiles_x + x] < len(det["scale"])))
+                continue
+            kids = [node * 32 + c for c in range(32) if (int(masks[level][node]) >> c) & 1]
+            if not kids:
+                continue
+            kid = np.array(kids, np.uint32)
+            idx = kid.astype(np.int64) if ptr is None else ptr[level][kid]
+            blo, bhi, s = lo[level][idx], hi[level][idx], sm[level][idx]
+            if not all(det["axes"]):
+                with jax.enable_x64(True):
+                    ilo, ihi = ch.implicit_bounds(tree, level + 1, jnp.asarray(kid), np.float64)
+                ax = np.array(det["axes"])
+                blo = np.where(ax, blo, np.asarray(ilo))
+                bhi = np.where(ax, bhi, np.asarray(ihi))
+            for j, k in enumerate(kids):
+                out["node_tests"] += 1
+                vmax = [sum(max(g[t, r, a] * blo[j, a], g[t, r, a] * bhi[j, a]) for a in range(3))
+                        + g[t, r, 3] for r in range(7)]
+                vmin = [sum(min(g[t, r, a] * blo[j, a], g[t, r, a] * bhi[j, a]) for a in range(3))
+                        + g[t, r, 3] for r in range(7)]
+                rej = any(vmax[r] < -tol[t, r] for r in range(3)) or (
+                    s[j] > 0 and vmin[3] - tol[t, 3] > 0)
+                cmax = vmax[3] + tol[t, 3]
+                acc = (not rej and all(vmin[r] >= tol[t, r] for r in range(3)) and s[j] > 0
+                       and cmax < 0 and (cmax / bhi[j, 2]) * s[j] * (1 - 64 * u)
+                       < bound[t] * (1 + 64 * u))
+                if not rej and not acc and det["extra"] != "none":
+                    rej = any(vmax[r] < -tol[t, r] for r in range(4, 7))
+                if rej:
+                    out["trivial_rejects"] += 1
+                elif acc:
+                    out["trivial_accepts"] += 1
+                else:
+                    stack.append((level + 1, k))
+        iters.append(count)
+    return out, np.array(iters)
+
+
+@pytest.mark.parametrize("method,opts", [("cluster", dict(bounds="explicit")),
+                                         ("cluster", dict(bounds="implicit", storage="full")),
+                                         ("ptsv", dict())])
+def test_traversal_counters_against_a_loop(method, opts):
+    scene = sl.load_scene("gate", trees=2, leaves_per_tree=12, bars=3)
+    view = default_view("gate", scene, trees=2, leaves_per_tree=12, bars=3)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(32, 32)))
+    res, det = run_traversal_method(scene, gbuf, view.light, kind=method, precision="float64",
+                                    shadow_eps=1e-5, bias="receiver", **opts)
+    want, iters = _loop_traversal(det)
+    for key, value in want.items():
+        assert res.counters[key] == value, key
+    np.testing.assert_array_equal(det["iterations_pass1"], iters)
+    # two passes: same work, split into (triangle, node) jobs
+    res2, det2 = run_traversal_method(scene, gbuf, view.light, kind=method, precision="float64",
+                                      shadow_eps=1e-5, bias="receiver", passes=2,
+                                      expand_level=2, **opts)
+    for key in want:
+        assert res2.counters[key] == res.counters[key], key
+    assert det2["iterations_pass1"].sum() + det2["iterations_pass2"].sum() == iters.sum()
+    assert np.array_equal(res2.lit, res.lit)
