@@ -78,6 +78,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .io import jsonable
+
 from .scene.mesh import SUPPORTED_FORMATS, Scene, SceneError
 from .scene.view import (Animation, Camera, DirectionalLight, Light, PointLight, SphereLight,
                          View)
@@ -239,7 +241,7 @@ class RunConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """A plain, JSON-able dict of every setting (tuples become lists)."""
-        return _plain({
+        return jsonable({
             "source": self.source,
             "overrides": list(self.overrides),
             "scene": dataclasses.asdict(self.scene),
@@ -781,7 +783,7 @@ def _read_params(ctx: _Context, name: str, params: dict) -> dict[str, Any]:
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         raise ConfigError(f"{ctx.where(key)}: unknown key {key!r}{hint} for generator "
                           f"{name!r}; allowed keys in [scene.params]: "
-                          + ", ".join(f"{k} (default {_show(_plain(v))})"
+                          + ", ".join(f"{k} (default {_show(jsonable(v))})"
                                       for k, v in defaults.items()))
     out = dict(defaults)
     for k, value in params.items():
@@ -947,18 +949,3 @@ def _read_output(ctx: _Context, table: dict, default_dir: str) -> OutputConfig:
         raise ctx.error("output.dir", f"must be a non-empty path string, got {_show(out_dir)}")
     figures = _bool(ctx, "output.figures", table.get("figures", True))
     return OutputConfig(dir=out_dir, figures=figures)
-
-
-def _plain(value: Any) -> Any:
-    """Convert tuples, NumPy arrays and scalars, and Paths to JSON-able values."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    return value

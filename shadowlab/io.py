@@ -34,11 +34,12 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
         raise
 
 
-def _jsonable(obj):
+def jsonable(obj):
+    """Tuples, NumPy arrays and scalars, Paths and non-finite floats as JSON values."""
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):
@@ -52,7 +53,7 @@ def _jsonable(obj):
 
 def write_json(path, data) -> Path:
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(_jsonable(data), indent=2, sort_keys=False) + "\n")
+        tmp.write_text(json.dumps(jsonable(data), indent=2, sort_keys=False) + "\n")
     return Path(path)
 
 
