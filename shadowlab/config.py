@@ -79,7 +79,6 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .io import jsonable
-
 from .scene.mesh import SUPPORTED_FORMATS, Scene, SceneError
 from .scene.view import (Animation, Camera, DirectionalLight, Light, PointLight, SphereLight,
                          View)
