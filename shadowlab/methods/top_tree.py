@@ -427,13 +427,19 @@ def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> 
     lower-ranked triangles merged on it, so the result equals sequential insertion in
     rank order node for node (checked in tests/test_top_tree.py).
     """
+    import contextlib
+    stage = timer.stage("build_setup") if timer is not None else contextlib.nullcontext()
     dt = inp.planes.dtype.type
-    args = (jnp.asarray(inp.planes), jnp.asarray(inp.verts), jnp.asarray(inp.key),
-            jnp.asarray(inp.inv_dist), jnp.asarray(inp.inv_vdist), jnp.int32(inp.count),
-            jnp.asarray(dt(inp.margin)), jnp.asarray(dt(inp.cap_extra)), jnp.int32(0))
+    with stage:
+        args = (jnp.asarray(inp.planes), jnp.asarray(inp.verts), jnp.asarray(inp.key),
+                jnp.asarray(inp.inv_dist), jnp.asarray(inp.inv_vdist), jnp.int32(inp.count),
+                jnp.asarray(dt(inp.margin)), jnp.asarray(dt(inp.cap_extra)), jnp.int32(0))
     kernel = _build_kernel(wedge)
     out = timer.run("build", kernel, *args) if timer is not None else kernel(*args)
-    pos, inter, wedge_v, depth, anc, level, status, root, rounds = (np.asarray(o) for o in out)
-    return TopTree(inp.planes.reshape(-1, 4).copy(), pos, inter, wedge_v, depth, anc, level,
-                   status, inp.tri.copy(), inp.bound.copy(), int(root), inp.count, int(rounds),
-                   inp.margin)
+    stage = timer.stage("build_setup") if timer is not None else contextlib.nullcontext()
+    with stage:
+        pos, inter, wedge_v, depth, anc, level, status, root, rounds = (np.asarray(o)
+                                                                        for o in out)
+        return TopTree(inp.planes.reshape(-1, 4).copy(), pos, inter, wedge_v, depth, anc,
+                       level, status, inp.tri.copy(), inp.bound.copy(), int(root), inp.count,
+                       int(rounds), inp.margin)
