@@ -77,6 +77,34 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
             "(ancestor link set)"),
     Counter("build_rounds", "int", "rounds of the parallel TOP-tree build"),
     Counter("query_chunks", "int", "fixed-trip query chunks run (between lane compactions)"),
+    # tiled soft shadows (soft_tiled, soft_overlap_sum; docs/soft_tiled.md)
+    Counter("soft_clusters", "int", "triangle clusters built from the scene (Morton-sorted runs "
+            "of cluster_size triangles)"),
+    Counter("light_facing_survivors", "int", "non-degenerate triangles left after the "
+            "light-facing culling (face_cull)"),
+    Counter("gather_clusters", "int", "clusters with a triangle surviving the gather pass"),
+    Counter("gather_triangles", "int", "triangles surviving the gather pass (light-facing and "
+            "view-frustum cone culling)"),
+    Counter("tiles", "int", "16x16 screen tiles"),
+    Counter("active_tiles", "int", "tiles with at least one relevant pixel (the rest exit early)"),
+    Counter("tile_cluster_pairs", "int", "active tile x gathered cluster cone tests"),
+    Counter("tile_cluster_survivors", "int", "tile x cluster pairs whose cone meets the tile's "
+            "bounding volume"),
+    Counter("tile_triangle_pairs", "int", "tile x triangle cone tests (triangles of surviving "
+            "clusters)"),
+    Counter("tile_triangles", "int", "entries of all tile triangle lists before the capacity "
+            "limit"),
+    Counter("tile_triangles_max", "int", "longest tile triangle list before the capacity limit"),
+    Counter("tile_list_lengths", "array", "triangle list length of each tile (before the "
+            "capacity limit), tile-major"),
+    Counter("tile_triangles_per_pixel", "map", "the triangle list length of the pixel's tile"),
+    Counter("overflow_tiles", "int", "tiles whose triangle list exceeds the capacity"),
+    Counter("overflow_tiles_per_pixel", "map", "1 where the pixel's tile overflowed its list"),
+    Counter("dropped_entries", "int", "tile list entries beyond the capacity that were not "
+            "evaluated (on_overflow='truncate'; those tiles may be wrong)"),
+    Counter("rasterized_triangles", "int", "pixel x triangle pairs passing the per-pixel quick "
+            "reject (in front, above the tangent plane, near the disk) and rasterized"),
+    Counter("rasterized_per_pixel", "map", "triangles rasterized (or summed) for each pixel"),
 ]}
 
 

@@ -152,7 +152,8 @@ def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
 
 
 # Modules under shadowlab.methods whose import registers their methods.
-BUILTIN_MODULES: tuple[str, ...] = ("brute_force", "psv", "clustered_ptsv", "ptsv", "stencil")
+BUILTIN_MODULES: tuple[str, ...] = ("brute_force", "psv", "clustered_ptsv", "ptsv", "stencil",
+                                    "soft_tiled")
 
 
 def _load_builtin():

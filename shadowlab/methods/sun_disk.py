@@ -162,10 +162,15 @@ def shr(x, k):
 
 def pack_rows(rows, g: Grid):
     """uint32 [..., rows] -> uint32 [..., words] (16x16: row 2k in the high half)."""
+    return jnp.stack(pack_list([rows[..., r] for r in range(g.rows)], g), -1)
+
+
+def pack_list(rows: list, g: Grid) -> list:
+    """Rows (a list of uint32 arrays) -> words (a list): 16x16 packs two rows a word."""
     if g.per_word == 1:
-        return rows
-    r = rows.reshape(rows.shape[:-1] + (g.words, 2))
-    return jax.lax.shift_left(r[..., 0], jnp.uint32(16)) | r[..., 1]
+        return list(rows)
+    return [jax.lax.shift_left(rows[2 * k], jnp.uint32(16)) | rows[2 * k + 1]
+            for k in range(g.words)]
 
 
 def popcount(words):
@@ -173,51 +178,88 @@ def popcount(words):
     return jnp.sum(jax.lax.population_count(words).astype(jnp.int32), axis=-1)
 
 
-def edge_outside_rows(a, b, c, g: Grid):
+def popcount_list(words: list):
+    """int32 [...]: set bits summed over a list of uint32 word arrays."""
+    out = jax.lax.population_count(words[0]).astype(jnp.int32)
+    for wd in words[1:]:
+        out = out + jax.lax.population_count(wd).astype(jnp.int32)
+    return out
+
+
+# The hot paths below work on lists of same-shaped arrays (structure of arrays): XLA's
+# CPU backend fuses long elementwise chains over a large minor axis into one loop, but
+# vectorizes badly over small trailing axes (3 vertices, 16 rows). The array versions
+# (edge_outside_rows, polygon_keep_rows, ...) wrap them for tests and notebooks.
+
+def edge_outside_list(a, b, c, g: Grid) -> list:
     """Cells of each scanline *outside* the half-plane a x + b y + c >= 0.
 
+    On row r the edge function at column j is f0_r + A j (A = a * cell width); the
+    columns inside are j >= t_r (A > 0) or j <= t_r (A < 0), t_r = -f0_r / A, linear in
+    the row's y: one reciprocal per edge, a multiply-add per row. The first column
+    inside (A > 0: ceil t) or outside (A < 0: floor t + 1) is a shift in [0, cols],
+    cols <= 31, so no shift by 32 arises.
+
     Args:
-        a, b, c: float arrays [...] (any float dtype), one edge function each.
+        a, b, c: float arrays [...] (same shape and dtype), one edge function each.
     Returns:
-        uint32 [..., rows]: bit set = cell centre outside the edge's half-plane
-        (a cell centre exactly on the edge is inside).
+        ``rows`` uint32 arrays [...]: bit set = cell centre outside the edge's
+        half-plane (a cell centre exactly on the edge is inside).
     """
-    xs, ys = g.centres()
-    dtype = jnp.result_type(a)
+    _, ys = g.centres()
     w = 2.0 / g.cols
-    y = jnp.asarray(ys, dtype)
-    a = a[..., None]
-    f0 = a * (-1.0 + 0.5 * w) + b[..., None] * y + c[..., None]   # f at column 0 [..., rows]
-    step = a * w                                                   # f(j+1) - f(j)
     n = g.cols
-    safe = jnp.where(step == 0, jnp.ones_like(step), step)
-    t = jnp.clip(-f0 / safe, -1.0, n + 1.0)        # inside: j >= t (step > 0), j <= t (< 0)
-    t = jnp.where(jnp.isnan(t), jnp.asarray(n + 1.0, dtype), t)
-    first_in = jnp.clip(jnp.ceil(t), 0, n).astype(jnp.uint32)          # step > 0
-    first_out = jnp.clip(jnp.floor(t) + 1, 0, n).astype(jnp.uint32)    # step < 0
+    step = a * w                                                  # f(j+1) - f(j)
+    base = a * (-1.0 + 0.5 * w) + c                               # f at column 0, y = 0
+    zero = step == 0
+    inv = jnp.where(zero, 0.0, -1.0 / jnp.where(zero, 1.0, step))
+    t0 = base * inv
+    dt = b * inv
+    rising = step > 0
     full = jnp.uint32(g.full_row)
-    left = full ^ shr(full, first_in)               # columns 0 .. first_in-1
-    right = shr(full, first_out)                    # columns first_out .. n-1
-    flat = jnp.where(f0 < 0, full, jnp.uint32(0))
-    return jnp.where(step > 0, left, jnp.where(step < 0, right, flat))
+    out = []
+    for y in ys:
+        t = jnp.clip(t0 + dt * float(y), -1.0, n + 1.0)
+        t = jnp.where(t != t, float(n + 1), t)                     # NaN guard
+        k = jnp.where(rising, jnp.ceil(t), jnp.floor(t) + 1.0)
+        k = jnp.clip(k, 0.0, float(n)).astype(jnp.uint32)
+        tail = jax.lax.shift_right_logical(full, k)                # columns k .. n-1
+        sloped = jnp.where(rising, full ^ tail, tail)
+        flat = jnp.where(base + b * float(y) < 0, full, jnp.uint32(0))
+        out.append(jnp.where(zero, flat, sloped))
+    return out
+
+
+def edge_outside_rows(a, b, c, g: Grid):
+    """Array version of :func:`edge_outside_list`: uint32 [..., rows]."""
+    a, b, c = jnp.broadcast_arrays(a, b, c)
+    return jnp.stack(edge_outside_list(a, b, c, g), -1)
+
+
+def polygon_keep_list(edges: list, g: Grid, active=None) -> list:
+    """Rows to AND into the grid for a convex polygon.
+
+    Args:
+        edges: list of (a, b, c) arrays [...]: inside where all a x + b y + c >= 0.
+        active: optional bool [...]; inactive polygons keep every bit.
+    Returns:
+        list of ``rows`` uint32 arrays [...]: bits cleared exactly at the cell centres
+        inside the polygon.
+    """
+    out = None
+    for a, b, c in edges:
+        rows = edge_outside_list(a, b, c, g)
+        out = rows if out is None else [o | r for o, r in zip(out, rows)]
+    if active is not None:
+        full = jnp.uint32(g.full_row)
+        out = [jnp.where(active, o, full) for o in out]
+    return out
 
 
 def polygon_keep_rows(edges, g: Grid, active=None):
-    """Rows to AND into the grid for a convex polygon given by its edges.
-
-    Args:
-        edges: float [..., E, 3], edge functions (a, b, c): inside where all
-            a x + b y + c >= 0.
-        active: optional bool [...]; inactive polygons keep every bit.
-    Returns:
-        uint32 [..., rows]: bits cleared exactly at cell centres inside the polygon.
-    """
-    out = edge_outside_rows(edges[..., 0, 0], edges[..., 0, 1], edges[..., 0, 2], g)
-    for e in range(1, edges.shape[-2]):
-        out = out | edge_outside_rows(edges[..., e, 0], edges[..., e, 1], edges[..., e, 2], g)
-    if active is not None:
-        out = jnp.where(active[..., None], out, jnp.uint32(g.full_row))
-    return out
+    """Array version: edges float [..., E, 3] -> uint32 [..., rows]."""
+    lst = [(edges[..., e, 0], edges[..., e, 1], edges[..., e, 2]) for e in range(edges.shape[-2])]
+    return jnp.stack(polygon_keep_list(lst, g, active), -1)
 
 
 def visibility(words, g: Grid):
@@ -227,25 +269,32 @@ def visibility(words, g: Grid):
 
 # ------------------------------------------------------------------ projections
 
-def triangle_edges_2d(p):
+def triangle_edges_list(px: list, py: list):
     """Edge functions of 2-D triangles, oriented so the inside is >= 0.
 
     Args:
-        p: float [..., 3, 2], vertices in disk space.
+        px, py: three arrays [...] each, the vertices' disk-space coordinates.
     Returns:
-        edges float [..., 3, 3] (a, b, c) and ok bool [...] (non-zero signed area).
+        edges (a list of three (a, b, c) array triples) and ok bool [...] (non-zero
+        signed area; degenerate triangles must be skipped).
     """
-    q = jnp.roll(p, -1, axis=-2)                     # p_{i+1}
-    ex = q[..., 0] - p[..., 0]
-    ey = q[..., 1] - p[..., 1]
-    # f_i(x, y) = ex * (y - p_y) - ey * (x - p_x)  (>= 0 left of the edge)
-    a = -ey
-    b = ex
-    c = ey * p[..., 0] - ex * p[..., 1]
-    area = jnp.sum(p[..., 0] * q[..., 1] - q[..., 0] * p[..., 1], axis=-1)
-    sign = jnp.sign(area)[..., None]
-    edges = jnp.stack([a * sign, b * sign, c * sign], axis=-1)
-    return edges, area != 0
+    area = 0.0
+    edges = []
+    for i in range(3):
+        j = (i + 1) % 3
+        ex, ey = px[j] - px[i], py[j] - py[i]
+        # f_i(x, y) = ex * (y - p_y) - ey * (x - p_x)  (>= 0 left of the edge)
+        edges.append((-ey, ex, ey * px[i] - ex * py[i]))
+        area = area + (px[i] * py[j] - px[j] * py[i])
+    sign = jnp.sign(area)
+    return [(a * sign, b * sign, c * sign) for a, b, c in edges], area != 0
+
+
+def triangle_edges_2d(p):
+    """Array version: p float [..., 3, 2] -> edges [..., 3, 3], ok [...]."""
+    edges, ok = triangle_edges_list([p[..., i, 0] for i in range(3)],
+                                    [p[..., i, 1] for i in range(3)])
+    return jnp.stack([jnp.stack(e, -1) for e in edges], -2), ok
 
 
 def project_paper(d, s):
@@ -261,8 +310,22 @@ def project_paper(d, s):
     return d[..., :2] / den[..., None]
 
 
-def homogeneous_edges(d, s, n_recv, eps, z_light=None):
-    """Exact disk-space edge functions of triangles seen from the fragment.
+def project_paper_list(x, y, z, s):
+    """SoA :func:`project_paper` of one vertex: arrays [...] -> (X, Y)."""
+    inv = 1.0 / jnp.maximum(PAPER_CLAMP, s * jnp.abs(z))
+    return x * inv, y * inv
+
+
+def _cross(u, v):
+    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+
+
+def _dot(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def homogeneous_edges_list(d: list, s, n_recv, eps, z_light=None):
+    """Exact disk-space edge functions of triangles seen from the fragment (SoA).
 
     A disk point (x, y) is the direction u = (s x, s y, 1). Inside = the ray from the
     fragment along u meets the triangle, at a point at least ``eps`` above the
@@ -270,37 +333,45 @@ def homogeneous_edges(d, s, n_recv, eps, z_light=None):
     silhouette disk at light-frame depth ``z_light``.
 
     Args:
-        d: float [..., 3, 3], triangle vertices minus the fragment, light frame.
-        s: disk scale, scalar or [...].
-        n_recv: float [..., 3], the receiver's unit normal in the light frame.
+        d: three vertices, each a tuple of three arrays [...] (x, y, z): vertex minus
+            fragment in the light frame, world units.
+        s: disk scale, array [...] or scalar.
+        n_recv: tuple of three arrays [...], the receiver's unit normal (light frame).
         eps: receiver bias, world units (scalar).
-        z_light: None (sun) or float [...], depth of the silhouette disk's plane.
+        z_light: None (sun) or array [...], depth of the silhouette disk's plane.
     Returns:
-        edges float [..., E, 3] with E = 4 (sun) or 5 (sphere), ok bool [...]
+        edges (a list of 4 (sun) or 5 (sphere) (a, b, c) triples) and ok bool [...]
         (the fragment is not in the triangle's plane).
     """
-    d0, d1, d2 = d[..., 0, :], d[..., 1, :], d[..., 2, :]
-    m = jnp.stack([jnp.cross(d0, d1), jnp.cross(d1, d2), jnp.cross(d2, d0)], axis=-2)
-    det = jnp.sum(d2 * m[..., 0, :], axis=-1)             # det(d0, d1, d2)
+    m = [_cross(d[0], d[1]), _cross(d[1], d[2]), _cross(d[2], d[0])]
+    det = _dot(d[2], m[0])                                 # det(d0, d1, d2)
     sg = jnp.sign(det)
-    s = jnp.asarray(s)
 
-    def lin(v, scale):                                     # v . u as (a, b, c)
-        return jnp.stack([scale * v[..., 0], scale * v[..., 1], v[..., 2]], axis=-1)
+    def lin(v):                                            # v . u as (a, b, c)
+        return (s * v[0], s * v[1], v[2])
 
-    s_e = s[..., None] if s.ndim else s                    # broadcast over the 3 edges
-    rows = [lin(m * sg[..., None, None], s_e)]
+    edges = [lin(tuple(sg * mi for mi in me)) for me in m]
     # hit point h = u * det / (n_t . u), n_t = (d1 - d0) x (d2 - d0), n_t . d0 = det.
-    n_t = jnp.cross(d1 - d0, d2 - d0)
+    e1 = tuple(d[1][i] - d[0][i] for i in range(3))
+    e2 = tuple(d[2][i] - d[0][i] for i in range(3))
+    n_t = _cross(e1, e2)
     # n_recv . h >= eps  <=>  |det| (n_recv . u) - eps sg (n_t . u) >= 0
-    v = jnp.abs(det)[..., None] * n_recv - eps * sg[..., None] * n_t
-    rows.append(lin(v, s)[..., None, :])
+    adet = jnp.abs(det)
+    edges.append(lin(tuple(adet * n_recv[i] - eps * sg * n_t[i] for i in range(3))))
     if z_light is not None:
         # h_z <= z_light  <=>  sg (z_light (n_t . u) - det) >= 0
-        lv = lin(z_light[..., None] * n_t, s)
-        lv = lv.at[..., 2].add(-det)
-        rows.append((lv * sg[..., None])[..., None, :])
-    return jnp.concatenate(rows, axis=-2), det != 0
+        a, b, c = lin(tuple(z_light * n_t[i] for i in range(3)))
+        edges.append((sg * a, sg * b, sg * (c - det)))
+    return edges, det != 0
+
+
+def homogeneous_edges(d, s, n_recv, eps, z_light=None):
+    """Array version: d [..., 3, 3], n_recv [..., 3] -> edges [..., E, 3], ok [...]."""
+    dl = [tuple(d[..., v, i] for i in range(3)) for v in range(3)]
+    nl = tuple(n_recv[..., i] for i in range(3))
+    s = jnp.broadcast_to(jnp.asarray(s, d.dtype), d.shape[:-2])
+    edges, ok = homogeneous_edges_list(dl, s, nl, eps, z_light)
+    return jnp.stack([jnp.stack(jnp.broadcast_arrays(*e), -1) for e in edges], -2), ok
 
 
 def horizon_edge(n_recv, s):

@@ -1,0 +1,819 @@
+"""``soft_tiled``: tiled per-triangle soft shadows (Kalbertodt 2023), and ``soft_overlap_sum``.
+
+For every relevant pixel the shadow-casting triangles are projected into the light's
+disk (``sun_disk``) and rasterized into a bitmask grid; visibility = set bits / disk
+bits. Triangles reach a pixel through two culling passes:
+
+1. **gather** (per frame): light-facing culling (option ``face_cull``), then
+   view-frustum culling of *truncated cones*: first of clusters (spatially sorted runs
+   of ``cluster_size`` triangles, built once per scene), then of the triangles of the
+   surviving clusters. The cone of a blocker (bounding sphere c, rho) holds every point
+   it can shadow: for a sun, half-angle r around the light's travel direction with its
+   apex rho / sin(r) behind c; for a sphere light (L, R), the penumbra cone through
+   the internal similitude centre of the two spheres, half-angle asin((R + rho) / |c - L|).
+   It is truncated by the plane through the blocker's vertex closest to the light.
+   The frustum test: the view frustum between the nearest and farthest relevant
+   depth, as six planes (a truncated cone entirely outside one is culled) and as a
+   capsule bounding it.
+2. **eval** per 16x16 screen tile: irrelevant pixels (invalid, or the whole light
+   below their tangent plane) are skipped; tiles without relevant pixels exit early;
+   the tile's relevant samples are bounded from its depth range (the tile frustum
+   between z_min and z_max) by a sphere or a capsule (option ``bound``), optionally
+   per half of the depth range (``half_z``, exact bounds of the two halves recomputed);
+   cluster cones, then triangle cones are culled against it into a per-tile triangle
+   list of fixed ``capacity`` (the paper's shared-memory list). A tile whose list
+   overflows is counted (``overflow_tiles``) and shown (``overflow_tiles_per_pixel``);
+   with ``on_overflow="truncate"`` it keeps the first ``capacity`` entries (the paper,
+   whose result there is wrong and flagged), with ``"full"`` it evaluates them all.
+
+The light: a sun (direction, angular radius r; disk scale s = tan r) or a sphere
+(position, radius R): seen from a fragment at distance D its silhouette is the disk of
+angular radius asin(R / D) around the direction to its centre, in the plane at depth
+D - R^2 / D along that direction; exactly what ``raycast.soft_reference`` samples.
+
+Vectorized JAX: tiles are grouped by the power of two of their list's chunk count; each
+group runs one jitted loop over chunks of ``chunk`` list entries, vectorized over
+(tiles x 256 pixels), unrolled over the chunk's triangles. See docs/soft_tiled.md.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import weakref
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..raycast import shadow_epsilon
+from ..scene.view import SphereLight
+from ..timing import StageTimer
+from . import sun_disk as sd
+from .common import bucket, precision_mode
+from .registry import Option, register
+from .result import ShadowResult
+
+TILE = 16
+BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
+GOLDEN_ITERS = 16
+
+
+# ------------------------------------------------------------------ clusters (per scene)
+
+def _morton3(q: np.ndarray) -> np.ndarray:
+    """uint64 [n]: 3-D Morton codes of 10-bit integer coordinates q [n, 3]."""
+    out = np.zeros(len(q), np.uint64)
+    q = q.astype(np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            out |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return out
+
+
+_CLUSTER_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def build_clusters(scene, size: int) -> np.ndarray:
+    """Triangle ids [C, size] of spatially sorted runs (Morton order of centroids);
+    the last run is padded with -1."""
+    per_scene = _CLUSTER_CACHE.setdefault(scene, {})
+    if size in per_scene:
+        return per_scene[size]
+    tri = scene.triangles
+    cen = tri.mean(axis=1)
+    lo, hi = cen.min(0), cen.max(0)
+    q = np.floor((cen - lo) / np.maximum(hi - lo, 1e-30) * 1023.999).astype(np.int64)
+    order = np.argsort(_morton3(np.clip(q, 0, 1023)), kind="stable")
+    n = len(order)
+    c = -(-n // size)
+    ids = np.full(c * size, -1, np.int64)
+    ids[:n] = order
+    per_scene[size] = ids.reshape(c, size)
+    return per_scene[size]
+
+
+# ------------------------------------------------------------------ cones
+
+def blocker_cones(tri: np.ndarray, groups: np.ndarray | None, light: SphereLight,
+                  ) -> dict[str, np.ndarray]:
+    """Truncated cones bounding what each blocker can shadow (float64, NumPy).
+
+    Args:
+        tri: float64 [T, 3, 3] triangles.
+        groups: None (one cone per triangle) or int [C, k] triangle ids (-1 = none),
+            one cone per group.
+    Returns:
+        dict of apex [n, 3], axis [n, 3] (unit, away from the light), sin [n], cos [n],
+        t0 [n] (points p with p . axis < t0 are never shadowed), always bool [n]
+        (no finite cone: the blocker is too close to a sphere light).
+    """
+    if groups is None:
+        pts = tri                                              # [n, 3, 3]
+        mask = np.ones(tri.shape[:2], bool)
+    else:
+        pts = tri[np.maximum(groups, 0)].reshape(len(groups), -1, 3)
+        mask = np.repeat(groups >= 0, 3, axis=1)
+    big = np.where(mask[..., None], pts, np.nan)
+    lo = np.nanmin(big, axis=1)
+    hi = np.nanmax(big, axis=1)
+    centre = 0.5 * (lo + hi)
+    rho = np.sqrt(np.nanmax(((big - centre[:, None]) ** 2).sum(-1), axis=1))
+    rho = rho * (1 + 1e-6) + 1e-9
+    n = len(centre)
+    if light.is_sun:
+        axis = np.broadcast_to(light.direction, (n, 3)).copy()
+        r = math.radians(light.angular_radius_deg)
+        sin_a = np.full(n, math.sin(r))
+        apex = centre - axis * (rho / sin_a)[:, None]
+        always = np.zeros(n, bool)
+    else:
+        L = light.position
+        to_c = centre - L
+        dist = np.linalg.norm(to_c, axis=1)
+        axis = to_c / np.maximum(dist, 1e-300)[:, None]
+        R = light.radius
+        always = R + rho >= dist
+        sin_a = np.where(always, 1.0, (R + rho) / np.maximum(dist, 1e-300))
+        apex = (rho[:, None] * L + R * centre) / (R + rho)[:, None]
+    cos_a = np.sqrt(np.maximum(1 - sin_a ** 2, 0))
+    proj = np.einsum("nki,ni->nk", np.where(mask[..., None], pts, 0.0), axis)
+    t0 = np.where(mask, proj, np.inf).min(axis=1)
+    return {"apex": apex, "axis": axis, "sin": sin_a, "cos": cos_a, "t0": t0,
+            "always": always}
+
+
+def _cone_dist(p, apex, axis, sin_a, cos_a):
+    """Distance [...] from points p [..., 3] to infinite solid cones (broadcast)."""
+    v = p - apex
+    h = jnp.sum(v * axis, -1)
+    vv = jnp.sum(v * v, -1)
+    q = jnp.sqrt(jnp.maximum(vv - h * h, 0.0))
+    side = q * cos_a - h * sin_a
+    return jnp.where(side <= 0, 0.0,
+                     jnp.where(h * cos_a + q * sin_a >= 0, side, jnp.sqrt(vv)))
+
+
+def cone_hits_capsule(cone, s0, s1, r0, r1):
+    """Conservative: may the truncated cone meet the capsule hull(B(s0, r0), B(s1, r1))?
+
+    f(t) = dist(s(t), cone) - r(t) is convex on [0, 1]; golden-section search brackets
+    its minimum, and f(t*) - Lip * bracket <= 0 accepts (Lip = |s1 - s0| + |r1 - r0|), so
+    the test never rejects a capsule that meets the cone. A sphere is s0 = s1, r0 = r1.
+
+    Args:
+        cone: dict of arrays broadcastable to [...] (apex/axis [..., 3]).
+        s0, s1: [..., 3]; r0, r1: [...].
+    Returns:
+        bool [...].
+    """
+    apex, axis, sa, ca = cone["apex"], cone["axis"], cone["sin"], cone["cos"]
+
+    def f(t):
+        p = s0 + t[..., None] * (s1 - s0)
+        return _cone_dist(p, apex, axis, sa, ca) - (r0 + t * (r1 - r0))
+
+    shape = jnp.broadcast_shapes(r0.shape, sa.shape)
+    lo = jnp.zeros(shape, r0.dtype)
+    hi = jnp.ones(shape, r0.dtype)
+    g = (math.sqrt(5) - 1) / 2
+    for _ in range(GOLDEN_ITERS):
+        a = hi - g * (hi - lo)
+        b = lo + g * (hi - lo)
+        left = f(a) <= f(b)
+        hi = jnp.where(left, b, hi)
+        lo = jnp.where(left, lo, a)
+    t = 0.5 * (lo + hi)
+    lip = jnp.linalg.norm(s1 - s0, axis=-1) + jnp.abs(r1 - r0)
+    best = jnp.minimum(jnp.minimum(f(t), f(jnp.zeros_like(t))), f(jnp.ones_like(t)))
+    meets = best - lip * (hi - lo) <= 0
+    reach = jnp.maximum(jnp.sum(s0 * axis, -1) + r0, jnp.sum(s1 * axis, -1) + r1)
+    return (meets & (reach >= cone["t0"])) | cone["always"]
+
+
+def cone_outside_plane(cone, normal, offset):
+    """bool [...]: the truncated cone lies entirely in n . x + offset < 0.
+
+    Its start cap (the disk where p . axis = t0) must be outside and every ray of the
+    cone must move away from the plane (n . axis <= -sin a).
+    """
+    apex, axis, sa, ca = cone["apex"], cone["axis"], cone["sin"], cone["cos"]
+    nd = jnp.sum(normal * axis, -1)
+    h = cone["t0"] - jnp.sum(apex * axis, -1)                 # apex to the cap, along axis
+    h = jnp.maximum(h, 0.0)
+    cap_c = apex + h[..., None] * axis
+    cap_r = h * sa / jnp.maximum(ca, 1e-30)
+    lateral = jnp.sqrt(jnp.maximum(1 - nd * nd, 0.0))
+    cap_out = jnp.sum(normal * cap_c, -1) + offset + cap_r * lateral < 0
+    return cap_out & (nd <= -sa) & ~cone["always"]
+
+
+@jax.jit
+def _gather_test(cone, planes, s0, s1, r0, r1):
+    """bool [n]: cones that may shadow a sample in the frustum (planes [6, 4])."""
+    keep = cone_hits_capsule(cone, s0, s1, r0, r1)
+    for k in range(6):
+        keep = keep & ~cone_outside_plane(cone, planes[k, :3], planes[k, 3])
+    return keep
+
+
+@jax.jit
+def _pair_test(cone, tile_of, bounds):
+    """bool [P, 2]: cone p against the two depth halves of tile tile_of[p].
+
+    bounds: [Nt, 2, 8] = (s0 xyz, r0, s1 xyz, r1) per half; r0 < 0 marks an empty half.
+    """
+    b = bounds[tile_of]                                        # [P, 2, 8]
+    out = []
+    for half in range(2):
+        bb = b[:, half]
+        hit = cone_hits_capsule(cone, bb[:, 0:3], bb[:, 4:7], bb[:, 3], bb[:, 7])
+        out.append(hit & (bb[:, 3] >= 0))
+    return jnp.stack(out, -1)
+
+
+# ------------------------------------------------------------------ per-pixel setup
+
+def _orthonormal(w: np.ndarray):
+    helper = np.where(np.abs(w[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    e1 = np.cross(helper, w)
+    e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+    return e1, np.cross(w, e1)
+
+
+def pixel_frames(pos, nrm, light: SphereLight, disk_scale: str):
+    """Per-pixel light frame (float64, NumPy).
+
+    Args:
+        pos, nrm: [n, 3] positions and unit normals.
+    Returns:
+        frame [n, 3, 3] (rows e1, e2, w; w towards the light's centre), s [n] (disk
+        scale: tan or sin of the angular radius), z_light [n] (depth of the silhouette
+        disk's plane along w; inf for a sun), sin_a [n].
+    """
+    n = len(pos)
+    if light.is_sun:
+        w = np.broadcast_to(-light.direction, (n, 3))
+        r = math.radians(light.angular_radius_deg)
+        sin_a = np.full(n, math.sin(r))
+        z_light = np.full(n, np.inf)
+    else:
+        to_c = light.position - pos
+        dist = np.linalg.norm(to_c, axis=1)
+        w = to_c / np.maximum(dist, 1e-300)[:, None]
+        sin_a = np.minimum(light.radius / np.maximum(dist, 1e-300), 1.0)
+        z_light = dist - light.radius ** 2 / np.maximum(dist, 1e-300)
+    cos_a = np.sqrt(np.maximum(1 - sin_a ** 2, 1e-30))
+    s = sin_a / cos_a if disk_scale == "tan" else sin_a
+    e1, e2 = _orthonormal(np.asarray(w, float))
+    frame = np.stack([e1, e2, w], axis=1)
+    return frame, s, z_light, sin_a
+
+
+def tile_bounds(camera, depth: np.ndarray, relevant: np.ndarray, half_z: bool, pad: float):
+    """Bounding capsules of each tile's relevant samples.
+
+    Args:
+        depth, relevant: [Nt, 256] view depths and flags (tile-major layout).
+    Returns:
+        float64 [Nt, 2, 8]: per depth half (near, far) the capsule (s0, r0, s1, r1):
+        the tile's frustum between the half's min and max depth, its cross-section at
+        depth z bounded by the disk of radius z * hd around the tile's centre ray.
+        Without ``half_z`` half 0 holds the whole range and half 1 is empty
+        (r0 = -1). Also returns half [Nt, 256] int (0 near, 1 far).
+    """
+    h, w = camera.height, camera.width
+    ty, tx = -(-h // TILE), -(-w // TILE)
+    t = math.tan(math.radians(camera.fov_y_deg) / 2)
+    right, up, back = camera.basis()
+    x0 = np.arange(tx) * TILE
+    y0 = np.arange(ty) * TILE
+    xe = np.minimum(x0 + TILE, w)
+    ye = np.minimum(y0 + TILE, h)
+
+    def ndc_x(px):
+        return (px / w * 2 - 1) * t * camera.aspect
+
+    def ndc_y(py):
+        return (1 - py / h * 2) * t
+
+    cx = np.stack([ndc_x(x0), ndc_x(xe)], -1)                  # [tx, 2]
+    cy = np.stack([ndc_y(y0), ndc_y(ye)], -1)                  # [ty, 2]
+    mx = cx.mean(-1)
+    my = cy.mean(-1)
+    hx = 0.5 * np.abs(cx[:, 1] - cx[:, 0])
+    hy = 0.5 * np.abs(cy[:, 1] - cy[:, 0])
+    rc = (mx[None, :, None] * right + my[:, None, None] * up - back).reshape(-1, 3)  # [Nt, 3]
+    hd = np.sqrt(hx[None, :] ** 2 + hy[:, None] ** 2).reshape(-1)
+    inf = np.where(relevant, depth, np.inf)
+    sup = np.where(relevant, depth, -np.inf)
+    zmin, zmax = inf.min(1), sup.max(1)
+    if half_z:
+        mid = 0.5 * (zmin + zmax)
+        half = (depth > mid[:, None]).astype(np.int64)
+    else:
+        half = np.zeros(depth.shape, np.int64)
+    out = np.zeros((len(rc), 2, 8))
+    for k in range(2):
+        sel = relevant & (half == k)
+        lo = np.where(sel, depth, np.inf).min(1)
+        hi = np.where(sel, depth, -np.inf).max(1)
+        ok = sel.any(1)
+        lo = np.where(ok, lo, 1.0)
+        hi = np.where(ok, hi, 1.0)
+        out[:, k, 0:3] = camera.eye + lo[:, None] * rc
+        out[:, k, 3] = np.where(ok, lo * hd * (1 + 1e-6) + pad, -1.0)
+        out[:, k, 4:7] = camera.eye + hi[:, None] * rc
+        out[:, k, 7] = np.where(ok, hi * hd * (1 + 1e-6) + pad, -1.0)
+        # the depth planes' slab is a little thicker than the pixel positions
+        out[:, k, 0:3] -= pad * rc / np.linalg.norm(rc, axis=1, keepdims=True)
+        out[:, k, 4:7] += pad * rc / np.linalg.norm(rc, axis=1, keepdims=True)
+    return out, half
+
+
+def capsule_to_sphere(b: np.ndarray) -> np.ndarray:
+    """The smallest sphere holding each capsule [..., 8], as a capsule with s0 = s1."""
+    s0, r0, s1, r1 = b[..., 0:3], b[..., 3], b[..., 4:7], b[..., 7]
+    d = np.linalg.norm(s1 - s0, axis=-1)
+    r = 0.5 * (d + r0 + r1)
+    r = np.maximum(r, np.maximum(r0, r1))
+    t = np.where(d > 0, (r - r0) / np.maximum(d, 1e-300), 0.0)
+    c = s0 + np.clip(t, 0, 1)[..., None] * (s1 - s0)
+    out = b.copy()
+    out[..., 0:3] = c
+    out[..., 4:7] = c
+    out[..., 3] = np.where(r0 < 0, -1.0, r)
+    out[..., 7] = np.where(r0 < 0, -1.0, r)
+    return out
+
+
+def frustum_planes(camera, zmin: float, zmax: float) -> np.ndarray:
+    """float64 [6, 4]: inside where n . x + d >= 0 (sides, near at zmin, far at zmax)."""
+    right, up, back = camera.basis()
+    t = math.tan(math.radians(camera.fov_y_deg) / 2)
+    ta = t * camera.aspect
+    fwd = -back
+    normals = [fwd * ta + right, fwd * ta - right, fwd * t + up, fwd * t - up]
+    planes = []
+    for n in normals:
+        n = n / np.linalg.norm(n)
+        planes.append(np.append(n, -n @ camera.eye))
+    planes.append(np.append(fwd, -fwd @ camera.eye - zmin))
+    planes.append(np.append(-fwd, fwd @ camera.eye + zmax))
+    return np.asarray(planes)
+
+
+# ------------------------------------------------------------------ eval kernel
+
+@functools.lru_cache(maxsize=None)
+def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, horizon: bool,
+                 mode: str):
+    g = sd.grid(grid_name)
+    disk = [np.uint32(wd) for wd in g.disk_mask()]
+
+    @jax.jit
+    def run(tiles, offsets, counts, trips, pix, tri, tri_id, entries, entry_half, eps):
+        """Visibility of the pixels of ``tiles`` [G].
+
+        pix: per-tile pixel arrays, component axis first: pos [3, Nt, 256], frame
+        [9, Nt, 256] (rows e1, e2, w), nrm [3, Nt, 256] (light frame), s, zl [Nt, 256],
+        id, half [Nt, 256] int32, rel [Nt, 256] bool. tri [9, Tg] vertex coordinates,
+        tri_id [Tg]; entries/entry_half [L]: the flat tile lists (tile t's at
+        offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256], tests [G, 256],
+        rasterized [G, 256] (int32).
+        """
+        pos = [pix["pos"][i][tiles] for i in range(3)]              # [G, 256] each
+        fr = [pix["frame"][i][tiles] for i in range(9)]
+        nrm = tuple(pix["nrm"][i][tiles] for i in range(3))
+        s, zl = pix["s"][tiles], pix["zl"][tiles]
+        pid, phalf, rel = pix["id"][tiles], pix["half"][tiles], pix["rel"][tiles]
+        dtype = s.dtype
+        shape = s.shape
+        words0 = [jnp.full(shape, wd, jnp.uint32) for wd in disk]
+        if mode == "bitmask" and horizon:
+            below = sd.edge_outside_list(s * nrm[0], s * nrm[1], nrm[2], g)
+            words0 = [wd & ~b for wd, b in zip(words0, sd.pack_list(below, g))]
+        blocked0 = jnp.zeros(shape, dtype)
+        if mode == "overlap" and horizon:
+            # disk area below the horizon line s n_x x + s n_y y + n_z = 0 (a segment)
+            ln = jnp.sqrt((s * nrm[0]) ** 2 + (s * nrm[1]) ** 2)
+            hgt = jnp.clip(nrm[2] / jnp.maximum(ln, 1e-30), -1.0, 1.0)
+            blocked0 = (jnp.arccos(hgt) - hgt * jnp.sqrt(1 - hgt * hgt)) / math.pi
+        zero = jnp.zeros(shape, jnp.int32)
+
+        def body(j, state):
+            words, blocked, tests, rast = state
+            slot = j * chunk + jnp.arange(chunk, dtype=jnp.int32)          # [K]
+            live = slot[None, :] < counts[:, None]                          # [G, K]
+            idx = jnp.where(live, offsets[:, None] + slot[None, :], 0)
+            ent = entries[idx]
+            eh = entry_half[idx]
+            verts = tri[:, ent]                                             # [9, G, K]
+            vid = tri_id[ent]
+            for k in range(chunk):
+                in_half = ((eh[:, k, None] >> phalf) & 1) == 1              # [G, 256]
+                act = live[:, k, None] & rel & in_half & (vid[:, k, None] != pid)
+                d = []
+                for v in range(3):
+                    dv = [verts[3 * v + i, :, k, None] - pos[i] for i in range(3)]
+                    d.append(tuple(dv[0] * fr[3 * c] + dv[1] * fr[3 * c + 1]
+                                   + dv[2] * fr[3 * c + 2] for c in range(3)))
+                z = [d[v][2] for v in range(3)]
+                hgt = [sd._dot(d[v], nrm) for v in range(3)]
+                quick = ~((z[0] <= 0) & (z[1] <= 0) & (z[2] <= 0))
+                quick &= ~((hgt[0] <= eps) & (hgt[1] <= eps) & (hgt[2] <= eps))
+                if sphere:
+                    quick &= ~((z[0] >= zl) & (z[1] >= zl) & (z[2] >= zl))
+                q = [sd.project_paper_list(d[v][0], d[v][1], d[v][2], s) for v in range(3)]
+                qx = [q[v][0] for v in range(3)]
+                qy = [q[v][1] for v in range(3)]
+                inbox = ~(((qx[0] > 1) & (qx[1] > 1) & (qx[2] > 1))
+                          | ((qx[0] < -1) & (qx[1] < -1) & (qx[2] < -1))
+                          | ((qy[0] > 1) & (qy[1] > 1) & (qy[2] > 1))
+                          | ((qy[0] < -1) & (qy[1] < -1) & (qy[2] < -1)))
+                if projection == "paper" or mode == "overlap":
+                    quick &= inbox
+                else:   # the projected box is exact only with every vertex in front
+                    front = ((z[0] * s > sd.PAPER_CLAMP) & (z[1] * s > sd.PAPER_CLAMP)
+                             & (z[2] * s > sd.PAPER_CLAMP))
+                    quick &= inbox | ~front
+                use = act & quick
+                tests = tests + act.astype(jnp.int32)
+                rast = rast + use.astype(jnp.int32)
+                if mode == "overlap":
+                    pts = jnp.stack([jnp.stack(jnp.broadcast_arrays(qx[v], qy[v]), -1)
+                                     for v in range(3)], -2)
+                    area = sd.overlap_area(pts) / math.pi
+                    blocked = blocked + jnp.where(use, area, 0.0).astype(dtype)
+                    continue
+                if projection == "paper":
+                    edges, ok = sd.triangle_edges_list(qx, qy)
+                else:
+                    edges, ok = sd.homogeneous_edges_list(d, s, nrm, eps, zl if sphere else None)
+                keep = sd.pack_list(sd.polygon_keep_list(edges, g, use & ok), g)
+                words = [wd & kp for wd, kp in zip(words, keep)]
+            return words, blocked, tests, rast
+
+        words, blocked, tests, rast = jax.lax.fori_loop(
+            0, trips, body, (words0, blocked0, zero, zero))
+        if mode == "overlap":
+            vis = jnp.clip(1.0 - blocked, 0.0, 1.0)
+        else:
+            vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
+        return jnp.where(rel, vis, 0.0), tests, rast
+
+    return run
+
+
+# ------------------------------------------------------------------ the method
+
+def _tile_layout(h: int, w: int):
+    """int64 [Nt, 256]: flat pixel index of each tile slot (-1 outside the image)."""
+    ty, tx = -(-h // TILE), -(-w // TILE)
+    yy = (np.arange(ty)[:, None, None, None] * TILE + np.arange(TILE)[None, None, :, None])
+    xx = (np.arange(tx)[None, :, None, None] * TILE + np.arange(TILE)[None, None, None, :])
+    yy, xx = np.broadcast_arrays(yy, xx)
+    idx = np.where((yy < h) & (xx < w), yy * w + xx, -1)
+    return idx.reshape(ty * tx, TILE * TILE)
+
+
+def _expand(tile_of: np.ndarray, group: np.ndarray, members: np.ndarray):
+    """Pairs (tile, member) for every (tile, group) pair: members [C, k] (-1 = none)."""
+    m = members[group]                                         # [P, k]
+    t = np.repeat(tile_of, m.shape[1])
+    m = m.reshape(-1)
+    ok = m >= 0
+    return t[ok], m[ok]
+
+
+def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, seed,
+                    projection, disk_scale, horizon, face_cull, gather_cull, tile_cull,
+                    cluster_cull, cluster_size, bound, half_z, capacity, on_overflow, chunk,
+                    mode, method):
+    timer = StageTimer()
+    cam = gbuf.camera
+    h, w = gbuf.shape
+    eps = shadow_epsilon(scene, shadow_eps)
+    with timer.stage("setup"):
+        tri_all = scene.triangles                                # float64 [T, 3, 3]
+        n_tri = len(tri_all)
+        layout = _tile_layout(h, w)
+        n_tiles = len(layout)
+        flat = np.maximum(layout, 0)
+        inside = layout >= 0
+        pos = gbuf.position.reshape(-1, 3)[flat]                 # [Nt, 256, 3]
+        nrm = gbuf.normal.reshape(-1, 3)[flat]
+        depth = gbuf.depth.reshape(-1)[flat]
+        tid = gbuf.triangle.reshape(-1)[flat]
+        valid = gbuf.valid.reshape(-1)[flat] & inside
+        frame, s, z_light, sin_a = pixel_frames(pos.reshape(-1, 3), nrm.reshape(-1, 3), light,
+                                                disk_scale)
+        frame = frame.reshape(n_tiles, TILE * TILE, 3, 3)
+        s = s.reshape(n_tiles, -1)
+        z_light = z_light.reshape(n_tiles, -1)
+        n_dot_w = np.einsum("tpi,tpi->tp", nrm, frame[..., 2, :])
+        # relevant: valid and some of the light's disk above the tangent plane
+        relevant = valid & (n_dot_w > -sin_a.reshape(n_tiles, -1))
+        if rotate:
+            ang = np.asarray(sd.pixel_angle(jnp.asarray(flat.astype(np.uint32)), seed,
+                                            dtype=jnp.float32), np.float64)
+            c, sn = np.cos(ang)[..., None], np.sin(ang)[..., None]
+            e1, e2 = frame[..., 0, :].copy(), frame[..., 1, :].copy()
+            frame[..., 0, :] = c * e1 + sn * e2
+            frame[..., 1, :] = -sn * e1 + c * e2
+        nrm_l = np.einsum("tpci,tpi->tpc", frame, nrm)
+        samples = int(relevant.sum())
+
+    with timer.stage("gather"):
+        # light-facing culling (the paper culls triangles facing the light)
+        e1 = tri_all[:, 1] - tri_all[:, 0]
+        e2 = tri_all[:, 2] - tri_all[:, 0]
+        ng = np.cross(e1, e2)
+        area2 = np.linalg.norm(ng, axis=1)
+        live = area2 > 0
+        ng = ng / np.maximum(area2, 1e-300)[:, None]
+        if light.is_sun:
+            facing = ng @ -light.direction
+            margin = math.sin(math.radians(light.angular_radius_deg))
+        else:
+            facing = np.einsum("ij,ij->i", ng, light.position - tri_all[:, 0])
+            margin = light.radius
+        if face_cull == "front":
+            live &= ~(facing > margin)                           # faces all of the light
+        elif face_cull == "back":
+            live &= ~(facing < -margin)
+        after_facing = int(live.sum())
+        clusters = build_clusters(scene, cluster_size)           # [C, k]
+        members = np.where(clusters >= 0, clusters, -1)
+        members = np.where(live[np.maximum(members, 0)] & (members >= 0), members, -1)
+        nonempty = (members >= 0).any(1)
+        members = members[nonempty]
+        rel_depth = depth[relevant]
+        if samples:
+            zmin, zmax = float(rel_depth.min()), float(rel_depth.max())
+        else:
+            zmin = zmax = 1.0
+        pad = 1e-5 * scene.diagonal + 2 * eps
+        # whole-screen capsule: the view frustum between zmin and zmax
+        t = math.tan(math.radians(cam.fov_y_deg) / 2)
+        hd = t * math.hypot(1.0, cam.aspect)
+        back = cam.basis()[2]
+        s0 = cam.eye - zmin * back
+        s1 = cam.eye - zmax * back
+        r0, r1 = zmin * hd + pad, zmax * hd + pad
+        planes = frustum_planes(cam, zmin - pad, zmax + pad)
+    with precision_mode(precision) as dtype:
+        def to_j(cone):
+            return {k: jnp.asarray(v if v.dtype == bool else v.astype(dtype))
+                    for k, v in cone.items()}
+
+        def gather_test(cone):
+            if not gather_cull:
+                return np.ones(len(cone["t0"]), bool)
+            args = (to_j(cone), jnp.asarray(planes, dtype), jnp.asarray(s0, dtype),
+                    jnp.asarray(s1, dtype), jnp.asarray(r0, dtype), jnp.asarray(r1, dtype))
+            return np.asarray(timer.run("gather_test", _gather_test, *args))
+
+        with timer.stage("gather"):
+            cl_cone = _pad_cone(blocker_cones(tri_all, members, light))
+        keep_cl = gather_test(cl_cone)[: len(members)] if samples else np.zeros(len(members), bool)
+        with timer.stage("gather"):
+            members = members[keep_cl]
+            cand = members[members >= 0]
+            tri_cone = _pad_cone(blocker_cones(tri_all[cand], None, light))
+        keep_tri = gather_test(tri_cone)[: len(cand)] if len(cand) else np.zeros(0, bool)
+        with timer.stage("gather"):
+            gathered = cand[keep_tri]                            # original triangle ids
+            local = np.full(n_tri, -1, np.int64)
+            local[gathered] = np.arange(len(gathered))
+            g_members = np.where(members >= 0, local[np.maximum(members, 0)], -1)
+            g_nonempty = (g_members >= 0).any(1)
+            g_members = g_members[g_nonempty]
+            g_cl_cone = _pad_cone(blocker_cones(tri_all, np.where(
+                g_members >= 0, gathered[np.maximum(g_members, 0)], -1), light))
+            g_tri_cone = _pad_cone(blocker_cones(tri_all[gathered], None, light))
+            n_gather_cl = len(g_members)
+            n_gather = len(gathered)
+
+        # ---- eval pass, culling part: per tile, clusters then triangles
+        with timer.stage("tile_bounds"):
+            bounds, half = tile_bounds(cam, depth, relevant, half_z, pad)
+            if bound == "sphere":
+                bounds = capsule_to_sphere(bounds)
+            active = relevant.any(1)
+            act_tiles = np.flatnonzero(active)
+        with timer.stage("tile_cull"):
+            tiles_p = np.repeat(act_tiles, n_gather_cl)
+            cl_p = np.tile(np.arange(n_gather_cl), len(act_tiles))
+        jb = jnp.asarray(bounds.astype(dtype))
+        cluster_pairs = len(tiles_p)
+        if cluster_cull and tile_cull and len(tiles_p):
+            hit = _run_pairs(timer, g_cl_cone, cl_p, tiles_p, jb, dtype)
+            keep = hit.any(1)
+            tiles_p, cl_p, cl_half = tiles_p[keep], cl_p[keep], hit[keep]
+        else:
+            cl_half = np.ones((len(tiles_p), 2), bool)
+        cluster_survivors = len(tiles_p)
+        with timer.stage("tile_cull"):
+            reps = (g_members[cl_p] >= 0).sum(1)
+            tri_t, tri_g = _expand(tiles_p, cl_p, g_members)
+            tri_h = np.repeat(cl_half, reps, axis=0)
+        triangle_pairs = len(tri_t)
+        if tile_cull and len(tri_t):
+            hit = _run_pairs(timer, g_tri_cone, tri_g, tri_t, jb, dtype) & tri_h
+            keep = hit.any(1)
+            tri_t, tri_g, tri_h = tri_t[keep], tri_g[keep], hit[keep]
+        with timer.stage("tile_cull"):
+            order = np.argsort(tri_t, kind="stable")
+            tri_t, tri_g, tri_h = tri_t[order], tri_g[order], tri_h[order]
+            lengths = np.bincount(tri_t, minlength=n_tiles)
+            starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+            overflow = lengths > capacity
+            counts = np.minimum(lengths, capacity) if on_overflow == "truncate" else lengths
+            half_bits = (tri_h[:, 0].astype(np.int32) | (tri_h[:, 1].astype(np.int32) << 1))
+
+        # ---- eval pass, rasterization: tiles grouped by chunk count
+        with timer.stage("eval_setup"):
+            pix = {"pos": np.moveaxis(pos, -1, 0),
+                   "frame": np.moveaxis(frame.reshape(n_tiles, TILE * TILE, 9), -1, 0),
+                   "nrm": np.moveaxis(nrm_l, -1, 0), "s": s,
+                   "zl": np.where(np.isfinite(z_light), z_light, 0.0)}
+            pix = {k: jnp.asarray(np.ascontiguousarray(v, dtype)) for k, v in pix.items()}
+            pix["id"] = jnp.asarray(np.where(valid, tid, -2).astype(np.int32))
+            pix["half"] = jnp.asarray(half.astype(np.int32))
+            pix["rel"] = jnp.asarray(relevant)
+            tri_g_arr = np.zeros((bucket(max(n_gather, 1), minimum=64, steps=8), 3, 3), dtype)
+            tri_g_arr[:n_gather] = tri_all[gathered]
+            tri_id = np.full(len(tri_g_arr), -1, np.int32)
+            tri_id[:n_gather] = gathered
+            L = bucket(max(len(tri_g), 1), minimum=1024, steps=8)
+            ent = np.zeros(L, np.int32)
+            ent[:len(tri_g)] = tri_g
+            ehalf = np.zeros(L, np.int32)
+            ehalf[:len(tri_g)] = half_bits
+            tri_soa = np.ascontiguousarray(tri_g_arr.reshape(-1, 9).T)
+            args_common = (pix, jnp.asarray(tri_soa), jnp.asarray(tri_id), jnp.asarray(ent),
+                           jnp.asarray(ehalf), jnp.asarray(dtype(eps)))
+            kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode)
+            nchunks = -(-counts // chunk)
+            vis = np.zeros((n_tiles, TILE * TILE))
+            tests = np.zeros((n_tiles, TILE * TILE), np.int64)
+            rast = np.zeros((n_tiles, TILE * TILE), np.int64)
+            # tiles sorted by chunk count, in batches of a fixed size: one compiled shape,
+            # and every batch loops only as long as its longest list
+            work = np.flatnonzero(active)
+            work = work[np.argsort(-nchunks[work], kind="stable")]
+            batch = min(BATCH_TILES, bucket(max(len(work), 1), minimum=4))
+        for lo in range(0, len(work), batch):
+            members_t = work[lo: lo + batch]
+            tiles = np.zeros(batch, np.int32)
+            tiles[: len(members_t)] = members_t
+            offs = np.zeros(batch, np.int32)
+            offs[: len(members_t)] = starts[members_t]
+            cnts = np.zeros(batch, np.int32)
+            cnts[: len(members_t)] = counts[members_t]
+            trips = jnp.asarray(int(nchunks[members_t].max()), jnp.int32)
+            v, te, ra = timer.run("eval", kernel, jnp.asarray(tiles), jnp.asarray(offs),
+                                  jnp.asarray(cnts), trips, *args_common)
+            n = len(members_t)
+            vis[members_t] = np.asarray(v)[:n]
+            tests[members_t] = np.asarray(te)[:n]
+            rast[members_t] = np.asarray(ra)[:n]
+
+    with timer.stage("output"):
+        def to_image(values, fill=0):
+            out = np.full(h * w, fill, dtype=values.dtype)
+            sel = layout >= 0
+            out[layout[sel]] = values[sel]
+            return out.reshape(h, w)
+
+        vis_img = to_image(np.where(relevant, vis, 0.0))
+        per_tile = np.repeat(lengths[:, None], TILE * TILE, 1)
+        over_map = np.repeat(overflow[:, None], TILE * TILE, 1).astype(np.int64)
+    counters = {
+        "samples": samples,
+        "casters": n_gather,
+        "culled_triangles": n_tri - n_gather,
+        "tests": int(tests.sum()),
+        "tests_per_pixel": to_image(tests),
+        "soft_clusters": int(len(clusters)),
+        "light_facing_survivors": after_facing,
+        "gather_clusters": n_gather_cl,
+        "gather_triangles": n_gather,
+        "active_tiles": int(active.sum()),
+        "tiles": n_tiles,
+        "tile_cluster_pairs": int(cluster_pairs),
+        "tile_cluster_survivors": int(cluster_survivors),
+        "tile_triangle_pairs": int(triangle_pairs),
+        "tile_triangles": int(lengths.sum()),
+        "tile_triangles_max": int(lengths.max()) if n_tiles else 0,
+        "tile_list_lengths": lengths.astype(np.int64),
+        "tile_triangles_per_pixel": to_image(per_tile.astype(np.int64)),
+        "overflow_tiles": int(overflow.sum()),
+        "overflow_tiles_per_pixel": to_image(over_map),
+        "dropped_entries": int((lengths - np.minimum(lengths, capacity)).sum())
+        if on_overflow == "truncate" else 0,
+        "rasterized_triangles": int(rast.sum()),
+        "rasterized_per_pixel": to_image(rast),
+    }
+    timings = dict(timer.times, total=timer.total)
+    options = {"precision": precision, "shadow_eps": shadow_eps, "grid": grid, "rotate": rotate,
+               "seed": seed, "projection": projection, "disk_scale": disk_scale,
+               "horizon": horizon, "face_cull": face_cull, "gather_cull": gather_cull,
+               "tile_cull": tile_cull, "cluster_cull": cluster_cull,
+               "cluster_size": cluster_size, "bound": bound, "half_z": half_z,
+               "capacity": capacity, "on_overflow": on_overflow, "chunk": chunk}
+    if mode == "overlap":
+        for k in ("grid", "rotate", "seed", "projection"):
+            options.pop(k)
+    return ShadowResult(vis_img, counters, timings, method, options)
+
+
+def _pad_cone(cone: dict) -> dict:
+    """Pad every cone array to a bucketed length (padding: cones that meet nothing)."""
+    n = len(cone["t0"])
+    cap = bucket(max(n, 1), minimum=256, steps=8)
+    out = {}
+    for k, v in cone.items():
+        fill = {"t0": np.inf, "always": False}.get(k, 0.0)
+        if k == "axis":
+            fill = 0.0
+        pad = np.full((cap - n,) + v.shape[1:], fill, dtype=v.dtype)
+        if k == "axis":
+            pad[..., 2] = 1.0
+        if k in ("sin",):
+            pad[:] = 0.5
+        if k == "cos":
+            pad[:] = math.sqrt(0.75)
+        out[k] = np.concatenate([v, pad])
+    return out
+
+
+def _run_pairs(timer, cone, which, tile_of, bounds, dtype):
+    """bool [P, 2]: cone ``which[p]`` against tile ``tile_of[p]``'s two halves."""
+    n = len(which)
+    cap = bucket(n, minimum=1024, steps=8)
+    w = np.zeros(cap, np.int64)
+    w[:n] = which
+    t = np.zeros(cap, np.int64)
+    t[:n] = tile_of
+    c = {k: jnp.asarray(v[w] if v.dtype == bool else v[w].astype(dtype)) for k, v in cone.items()}
+    out = timer.run("tile_cull", _pair_test, c, jnp.asarray(t.astype(np.int32)), bounds)
+    return np.asarray(out)[:n]
+
+
+GRID_OPTION = Option("16x16", "bitmask grid: 16x16 (8 words, 208 disk cells) or 31 columns x "
+                     "N rows", allowed=sd.GRID_NAMES)
+COMMON_SOFT = {
+    "disk_scale": Option("tan", "disk-space scale: 'tan' of the angular radius (exact "
+                         "silhouette cone) or the paper's 'sin'", allowed=("tan", "sin")),
+    "horizon": Option(True, "clear the disk below the receiver's tangent plane (the "
+                      "reference counts it as blocked); False = the paper", allowed=(True, False)),
+    "face_cull": Option("front", "gather: 'front' culls triangles facing all of the light "
+                        "(the paper; exact for closed meshes and height fields), 'back' the "
+                        "opposite, 'none' keeps both (two-sided soup)",
+                        allowed=("none", "front", "back")),
+    "gather_cull": Option(True, "view-frustum culling of cluster and triangle cones",
+                          allowed=(True, False)),
+    "tile_cull": Option(True, "per-tile cone culling (off: every tile lists every gathered "
+                        "triangle)", allowed=(True, False)),
+    "cluster_cull": Option(True, "per-tile cluster level before triangles",
+                           allowed=(True, False)),
+    "cluster_size": Option(64, "triangles per cluster (Morton-sorted runs)",
+                           allowed=(16, 32, 64, 128, 256)),
+    "bound": Option("capsule", "bounding volume of a tile's samples from its depth range",
+                    allowed=("sphere", "capsule")),
+    "half_z": Option(False, "split each tile's depth range in two halves with exact bounds",
+                     allowed=(True, False)),
+    "capacity": Option(2048, "per-tile triangle list capacity (the paper's shared-memory "
+                       "list; 2048 x 4 bytes = 8 KiB)", kind=int, minimum=1),
+    "on_overflow": Option("truncate", "a tile whose list overflows: 'truncate' keeps the "
+                          "first `capacity` entries (the paper; counted and shown), 'full' "
+                          "evaluates all", allowed=("truncate", "full")),
+    "chunk": Option(4, "list entries per unrolled loop step", allowed=(1, 2, 4, 8)),
+}
+
+
+@register("soft_tiled", exact=False, soft=True,
+          doc="tiled per-triangle soft shadows: sun-disk bitmask rasterizer with cone "
+              "culling per 16x16 tile", paper="kalbertodt2023-tiled-soft-shadow-volumes",
+          options={"grid": GRID_OPTION,
+                   "rotate": Option(True, "random grid rotation per pixel (against banding)",
+                                    allowed=(True, False)),
+                   "seed": Option(0, "seed of the per-pixel rotation hash", kind=int,
+                                  minimum=0),
+                   "projection": Option("paper", "'paper': divide by max(1e-4, s |z|) with "
+                                        "abs(); 'homogeneous': exact 3-D edge functions",
+                                        allowed=("paper", "homogeneous")),
+                   **COMMON_SOFT})
+def soft_tiled(scene, gbuf, light, **opts):
+    return soft_tiled_impl(scene, gbuf, light, mode="bitmask", method="soft_tiled", **opts)
+
+
+@register("soft_overlap_sum", exact=False, soft=True,
+          doc="naive comparison: sum of analytic disk-triangle overlap areas (double-counts "
+              "overlapping occluders)", paper="kalbertodt2023-tiled-soft-shadow-volumes",
+          options=dict(COMMON_SOFT))
+def soft_overlap_sum(scene, gbuf, light, **opts):
+    return soft_tiled_impl(scene, gbuf, light, mode="overlap", method="soft_overlap_sum",
+                           grid="16x16", rotate=False, seed=0, projection="paper", **opts)

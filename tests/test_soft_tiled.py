@@ -1,0 +1,123 @@
+"""soft_tiled / soft_overlap_sum against the Embree soft reference; culling is conservative."""
+
+import functools
+
+import numpy as np
+import pytest
+
+import shadowlab as sl
+from shadowlab.analysis.metrics import compare_soft
+from shadowlab.scene.procedural import default_view
+
+RES = (48, 48)
+FAST = {"grid": "31x5", "chunk": 2}          # a small kernel: quick to compile
+
+
+PARAMS = {"terrain": {"size": 40}, "fuzzy": {"triangles": 1500, "clusters": 3}}
+
+
+@functools.lru_cache(maxsize=None)
+def _case(name: str, sphere: bool = False):
+    scene = sl.load_scene(name, **PARAMS[name])
+    view = default_view(name, scene, **PARAMS[name])
+    light = view.light
+    if sphere:
+        pos = light.position if not getattr(light, "is_sun", False) else \
+            scene.bounds.mean(0) - 30 * light.direction
+        light = sl.SphereLight(position=pos, radius=0.08 * scene.diagonal)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=RES))
+    ref = sl.soft_reference(scene, gbuf, light, rays_per_pixel=256, seed=1)
+    return scene, gbuf, light, ref
+
+
+def test_error_against_reference_terrain(precision):
+    scene, gbuf, light, ref = _case("terrain")
+    exact = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", precision=precision,
+                               projection="homogeneous", face_cull="none", on_overflow="full",
+                               **FAST)
+    err = compare_soft(exact.lit, ref, gbuf.valid)
+    assert err["mae"] < 0.003 and err["max_error"] < 0.1, err
+    paper = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", precision=precision,
+                               on_overflow="full", **FAST)
+    err = compare_soft(paper.lit, ref, gbuf.valid)
+    assert err["mae"] < 0.01 and err["ssim"] > 0.9, err
+    assert paper.lit.dtype.kind == "f" and paper.lit.min() >= 0 and paper.lit.max() <= 1
+    assert not paper.lit[~gbuf.valid].any()
+
+
+def test_error_against_reference_sphere_light():
+    scene, gbuf, light, ref = _case("fuzzy", sphere=True)
+    res = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", projection="homogeneous",
+                             face_cull="none", on_overflow="full", **FAST)
+    err = compare_soft(res.lit, ref, gbuf.valid)
+    assert err["mae"] < 0.01, err
+    assert (ref[gbuf.valid] < 0.99).mean() > 0.05        # the scene has real penumbrae
+
+
+@pytest.mark.parametrize("name,sphere", [("terrain", False), ("fuzzy", True)])
+def test_culling_never_removes_an_occluder(name, sphere):
+    """Every culling stage on equals every stage off, bit for bit."""
+    scene, gbuf, light, _ = _case(name, sphere)
+    common = dict(FAST, projection="homogeneous", face_cull="none", on_overflow="full")
+    off = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", gather_cull=False,
+                             tile_cull=False, cluster_cull=False, **common)
+    assert off.counters["gather_triangles"] == off.counters["light_facing_survivors"]
+    for extra in [{}, {"bound": "sphere", "half_z": True, "cluster_cull": False}]:
+        on = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", **common, **extra)
+        assert np.array_equal(on.lit, off.lit), extra
+        assert on.counters["tile_triangles"] < off.counters["tile_triangles"]
+    c = on.counters
+    assert c["gather_triangles"] <= c["light_facing_survivors"] <= scene.num_triangles
+
+
+def test_overflow_is_counted_and_shown():
+    scene, gbuf, light, _ = _case("terrain")
+    full = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", capacity=1 << 20,
+                              **FAST)
+    assert full.counters["overflow_tiles"] == 0
+    cap = 16
+    lengths = full.counters["tile_list_lengths"]
+    assert (lengths > cap).any()
+    small = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", capacity=cap, **FAST)
+    c = small.counters
+    assert c["overflow_tiles"] == int((lengths > cap).sum())
+    assert c["dropped_entries"] == int(np.maximum(lengths - cap, 0).sum())
+    over = c["overflow_tiles_per_pixel"].astype(bool)
+    tiles = np.repeat(np.repeat((lengths > cap).reshape(3, 3), 16, 0), 16, 1)[:RES[1], :RES[0]]
+    assert np.array_equal(over, tiles)
+    # outside the overflowing tiles nothing changes; inside, occluders were dropped
+    assert np.array_equal(small.lit[~over], full.lit[~over])
+    assert (small.lit[over] >= full.lit[over]).all() and (small.lit[over] > full.lit[over]).any()
+    # evaluating the whole list instead: flagged, but the result is the full one
+    whole = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", capacity=cap,
+                               on_overflow="full", **FAST)
+    assert whole.counters["overflow_tiles"] == c["overflow_tiles"]
+    assert whole.counters["dropped_entries"] == 0
+    assert np.array_equal(whole.lit, full.lit)
+
+
+def test_counters_are_consistent():
+    scene, gbuf, light, _ = _case("terrain")
+    res = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", **FAST)
+    c = res.counters
+    assert c["tests"] == int(c["tests_per_pixel"].sum())
+    assert c["rasterized_triangles"] == int(c["rasterized_per_pixel"].sum())
+    assert (c["rasterized_per_pixel"] <= c["tests_per_pixel"]).all()
+    assert c["tile_triangles"] == int(c["tile_list_lengths"].sum())
+    assert c["tile_triangles_max"] == int(c["tile_list_lengths"].max())
+    assert c["active_tiles"] <= c["tiles"] == 9
+    assert c["tile_cluster_survivors"] <= c["tile_cluster_pairs"]
+    assert c["samples"] <= int(gbuf.valid.sum())
+    again = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", **FAST)
+    assert np.array_equal(again.lit, res.lit)                       # deterministic
+
+
+def test_overlap_sum_double_counts():
+    """The naive sum darkens where occluders overlap: never brighter than the union."""
+    scene, gbuf, light, ref = _case("terrain")
+    union = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", grid="31x31",
+                               rotate=False, chunk=2)
+    naive = sl.compute_shadows(scene, gbuf, light, method="soft_overlap_sum", chunk=2)
+    v = gbuf.valid
+    assert np.mean(naive.lit[v]) < np.mean(union.lit[v])
+    assert compare_soft(naive.lit, ref, v)["mae"] > compare_soft(union.lit, ref, v)["mae"]
