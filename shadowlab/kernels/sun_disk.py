@@ -20,6 +20,8 @@ and, for a sphere light, the silhouette depth ``z_light`` [F].
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import warp as wp
 
@@ -284,19 +286,34 @@ def jax_visibility(d, s, n, *, grid: str = "16x16", projection: str = "paper",
                    eps: float = 0.0, z_light=None, active=None, horizon: bool = False):
     """The same rasterizer composed from the JAX primitives of ``methods.sun_disk``
     (vectorized over fragments and triangles): the version the kernel must equal."""
+    import jax.numpy as jnp
+
+    d = np.asarray(d, np.float32)
+    f_count, t_count = d.shape[:2]
+    if active is None:
+        active = np.ones((f_count, t_count), bool)
+    run = _jax_rasterizer(grid, projection, float(eps), z_light is not None, bool(horizon))
+    zl = jnp.zeros(f_count, jnp.float32) if z_light is None else jnp.asarray(z_light,
+                                                                             jnp.float32)
+    words, vis, drawn = run(jnp.asarray(d), jnp.asarray(np.broadcast_to(s, (f_count,)),
+                                                        jnp.float32),
+                            jnp.asarray(n, jnp.float32), zl, jnp.asarray(active))
+    return {"words": np.asarray(words), "visibility": np.asarray(vis),
+            "rasterized": np.asarray(drawn).astype(np.int32)}
+
+
+@functools.lru_cache(maxsize=None)
+def _jax_rasterizer(grid, projection, eps, sphere, horizon):
     import jax
     import jax.numpy as jnp
 
     from ..methods import sun_disk as sd
 
     g = sd.grid(grid)
-    d = np.asarray(d, np.float32)
-    f_count, t_count = d.shape[:2]
-    if active is None:
-        active = np.ones((f_count, t_count), bool)
 
     @jax.jit
     def run(d, s, n, zl, active):
+        f_count, t_count = d.shape[:2]
         words = jnp.broadcast_to(jnp.asarray(g.disk_mask()), (f_count, g.words))
         if horizon:
             below = sd.edge_outside_rows(s * n[:, 0], s * n[:, 1], n[:, 2], g)
@@ -307,19 +324,14 @@ def jax_visibility(d, s, n, *, grid: str = "16x16", projection: str = "paper",
             q = sd.project_paper(d, sb[..., None])
             edges, ok = sd.triangle_edges_2d(q)
         else:
-            zlb = None if zl is None else jnp.broadcast_to(zl[:, None], (f_count, t_count))
+            zlb = jnp.broadcast_to(zl[:, None], (f_count, t_count)) if sphere else None
             edges, ok = sd.homogeneous_edges(d, sb, nb, eps, zlb)
         keep = sd.pack_rows(sd.polygon_keep_rows(edges, g, active & ok), g)   # [F, T, W]
         for t in range(t_count):
             words = words & keep[:, t]
         return words, sd.visibility(words, g), jnp.sum(active & ok, axis=1)
 
-    zl = None if z_light is None else jnp.asarray(z_light, jnp.float32)
-    words, vis, drawn = run(jnp.asarray(d), jnp.asarray(np.broadcast_to(s, (f_count,)),
-                                                        jnp.float32),
-                            jnp.asarray(n, jnp.float32), zl, jnp.asarray(active))
-    return {"words": np.asarray(words), "visibility": np.asarray(vis),
-            "rasterized": np.asarray(drawn).astype(np.int32)}
+    return run
 
 
 def load(device: str | None = None) -> None:
