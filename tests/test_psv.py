@@ -162,3 +162,69 @@ def test_counters_against_plain_loop(method, query, depth, stack):
             assert ov == got["stack_overflows_per_pixel"][i]
         if query == "hybrid":
             assert sw == got["stackless_switches_per_pixel"][i]
+
+
+# --------------------------------------------------------------------------- directional lights
+
+def _directional(name, direction, res=48):
+    params = SCENES[name]
+    scene = sl.load_scene(name, **params)
+    view = default_view(name, scene, **params)
+    light = sl.DirectionalLight(direction)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(res, res)))
+    return scene, light, gbuf, sl.reference_shadows(scene, gbuf, light)
+
+
+@pytest.mark.parametrize("name,direction", [("gate", (0.3, -1.0, -0.4)),
+                                            ("sphere_grid", (-0.5, -1.0, 0.2)),
+                                            ("fuzzy", (0.7, -0.6, 0.1))])
+def test_directional_light_queries_equal_reference(name, direction, precision):
+    scene, light, gbuf, truth = _directional(name, direction)
+    assert 0 < truth[gbuf.valid].mean() < 1          # both lit and shadowed samples
+    for m in METHODS:
+        r = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision)
+        ok = gbuf.valid
+        if m in ("psv", "d_psv"):
+            ok = ok & (r.counters["stack_overflows_per_pixel"] == 0)
+        assert np.count_nonzero((r.lit != truth) & ok) == 0, m
+    for opts in ({"wedge": "vertex"}, {"order": "distance"}, {"frustum_culling": True},
+                 {"stack_size": 1}):
+        r = sl.compute_shadows(scene, gbuf, light, method="d_hybrid", precision=precision,
+                               **opts)
+        assert np.count_nonzero((r.lit != truth) & gbuf.valid) == 0, opts
+
+
+def test_directional_light_counters_and_builds():
+    scene, light, gbuf, _ = _directional("sphere_grid", (-0.5, -1.0, 0.2), res=20)
+    samples = view_samples(gbuf, light)
+    light_h = sl.scene.view.hard_light(light).homogeneous
+    assert light_h[3] == 0
+    with precision_mode("float32") as dtype:
+        trees = [psvm.build_tree(scene, light, gbuf.camera, samples, dtype=dtype,
+                                 shadow_eps=1e-5, bias="receiver", order="random", seed=0,
+                                 wedge="conservative", classify_ulps=64, build=b)[0]
+                 for b in ("parallel", "sequential")]
+    assert trees[0].same_as(trees[1]) == []
+    tree = trees[0]
+    # Depth keys: -dot(towards light, p), the smallest over each merged triangle.
+    merged = tree.status == tt.STATUS_MERGED
+    keys = tt.triangle_key(scene.triangles[tree.tri[merged]], light_h)
+    assert np.all(tree.depth[merged] <= keys - tree.margin + 1e-6)
+    key = tt.light_key(samples.position, light_h).astype(np.float32)
+    pts = samples.position.astype(np.float32)
+    with precision_mode("float32"):
+        _, scale, _ = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=np.float32,
+                                      shadow_eps=1e-5, bias="receiver", order="random", seed=0,
+                                      wedge="conservative", classify_ulps=64)
+    sc = scale.astype(np.float32)
+    for method, query, depth, stack in (("d_psv", "stack", True, 3),
+                                        ("d_stackless", "stackless", True, 0),
+                                        ("d_hybrid", "hybrid", True, 2)):
+        kw = {} if query == "stackless" else {"stack_size": stack}
+        r = sl.compute_shadows(scene, gbuf, light, method=method, **kw)
+        got = r.counters["visited_nodes_per_pixel"].reshape(-1)[samples.index]
+        lit = r.lit.reshape(-1)[samples.index]
+        for i in range(samples.count):
+            l, v, *_ = _plain_query(tree, pts[i], sc[i], key[i], light_h, query, depth, stack,
+                                    "conservative")
+            assert l == lit[i] and v == got[i], (method, i)
