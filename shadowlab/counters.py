@@ -105,6 +105,9 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("rasterized_triangles", "int", "pixel x triangle pairs passing the per-pixel quick "
             "reject (in front, above the tangent plane, near the disk) and rasterized"),
     Counter("rasterized_per_pixel", "map", "triangles rasterized (or summed) for each pixel"),
+    Counter("near_clamp_per_pixel", "map", "rasterized triangles with a vertex behind the "
+            "fragment or closer than the paper's clamp depth (s |z| < 1e-4), where its abs() "
+            "and max() act"),
 ]}
 
 

@@ -379,8 +379,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         [9, Nt, 256] (rows e1, e2, w), nrm [3, Nt, 256] (light frame), s, zl [Nt, 256],
         id, half [Nt, 256] int32, rel [Nt, 256] bool. tri [9, Tg] vertex coordinates,
         tri_id [Tg]; entries/entry_half [L]: the flat tile lists (tile t's at
-        offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256], tests [G, 256],
-        rasterized [G, 256] (int32).
+        offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256] and the
+        counts of tests, rasterized and near-clamp triangles [G, 256] (int32).
         """
         pos = [pix["pos"][i][tiles] for i in range(3)]              # [G, 256] each
         fr = [pix["frame"][i][tiles] for i in range(9)]
@@ -402,7 +402,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         zero = jnp.zeros(shape, jnp.int32)
 
         def body(j, state):
-            words, blocked, tests, rast = state
+            words, blocked, tests, rast, clamp = state
             slot = j * chunk + jnp.arange(chunk, dtype=jnp.int32)          # [K]
             live = slot[None, :] < counts[:, None]                          # [G, K]
             idx = jnp.where(live, offsets[:, None] + slot[None, :], 0)
@@ -440,6 +440,10 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 use = act & quick
                 tests = tests + act.astype(jnp.int32)
                 rast = rast + use.astype(jnp.int32)
+                # the paper's clamp (or abs()) acts on some vertex of this triangle
+                near = ((z[0] * s < sd.PAPER_CLAMP) | (z[1] * s < sd.PAPER_CLAMP)
+                        | (z[2] * s < sd.PAPER_CLAMP))
+                clamp = clamp + (use & near).astype(jnp.int32)
                 if mode == "overlap":
                     pts = jnp.stack([jnp.stack(jnp.broadcast_arrays(qx[v], qy[v]), -1)
                                      for v in range(3)], -2)
@@ -452,15 +456,15 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                     edges, ok = sd.homogeneous_edges_list(d, s, nrm, eps, zl if sphere else None)
                 keep = sd.pack_list(sd.polygon_keep_list(edges, g, use & ok), g)
                 words = [wd & kp for wd, kp in zip(words, keep)]
-            return words, blocked, tests, rast
+            return words, blocked, tests, rast, clamp
 
-        words, blocked, tests, rast = jax.lax.fori_loop(
-            0, trips, body, (words0, blocked0, zero, zero))
+        words, blocked, tests, rast, clamp = jax.lax.fori_loop(
+            0, trips, body, (words0, blocked0, zero, zero, zero))
         if mode == "overlap":
             vis = jnp.clip(1.0 - blocked, 0.0, 1.0)
         else:
             vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
-        return jnp.where(rel, vis, 0.0), tests, rast
+        return jnp.where(rel, vis, 0.0), tests, rast, clamp
 
     return run
 
@@ -659,6 +663,7 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
             vis = np.zeros((n_tiles, TILE * TILE))
             tests = np.zeros((n_tiles, TILE * TILE), np.int64)
             rast = np.zeros((n_tiles, TILE * TILE), np.int64)
+            clamped = np.zeros((n_tiles, TILE * TILE), np.int64)
             # tiles sorted by chunk count, in batches of a fixed size: one compiled shape,
             # and every batch loops only as long as its longest list
             work = np.flatnonzero(active)
@@ -673,12 +678,13 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
             cnts = np.zeros(batch, np.int32)
             cnts[: len(members_t)] = counts[members_t]
             trips = jnp.asarray(int(nchunks[members_t].max()), jnp.int32)
-            v, te, ra = timer.run("eval", kernel, jnp.asarray(tiles), jnp.asarray(offs),
-                                  jnp.asarray(cnts), trips, *args_common)
+            v, te, ra, cl = timer.run("eval", kernel, jnp.asarray(tiles), jnp.asarray(offs),
+                                      jnp.asarray(cnts), trips, *args_common)
             n = len(members_t)
             vis[members_t] = np.asarray(v)[:n]
             tests[members_t] = np.asarray(te)[:n]
             rast[members_t] = np.asarray(ra)[:n]
+            clamped[members_t] = np.asarray(cl)[:n]
 
     with timer.stage("output"):
         def to_image(values, fill=0):
@@ -715,6 +721,7 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
         if on_overflow == "truncate" else 0,
         "rasterized_triangles": int(rast.sum()),
         "rasterized_per_pixel": to_image(rast),
+        "near_clamp_per_pixel": to_image(clamped),
     }
     timings = dict(timer.times, total=timer.total)
     options = {"precision": precision, "shadow_eps": shadow_eps, "grid": grid, "rotate": rotate,
