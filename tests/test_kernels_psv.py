@@ -65,7 +65,7 @@ def test_tree_equals_sequential_build_all_wedges():
 
 
 @pytest.mark.parametrize("name", list(SCENES))
-@pytest.mark.parametrize("method", kernels.METHODS)
+@pytest.mark.parametrize("method", kernels.PSV_METHODS)
 def test_method_equals_jax_and_reference(name, method):
     scene, light, gbuf, truth = _scene(name)
     j = sl.compute_shadows(scene, gbuf, light, method=method)

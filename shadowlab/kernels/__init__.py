@@ -16,8 +16,12 @@ it on first use::
         tree, stats = kernels.psv_build(build_input)
         out = kernels.psv_query(tree, points, scale, key, light_h, query="hybrid", ...)
         vis = kernels.sun_disk_visibility(...)
+        res = kernels.compute_shadows(scene, gbuf, light, method="clustered_ptsv",
+                                      form="lanes", passes=2)
 
 One file per algorithm: ``psv.py`` (TOP-tree insertion and the four queries),
+``clustered_ptsv.py`` (hierarchy build, triangle setup, the Algorithm 1 traversal in a
+faithful 32-lane form and a fast warp-per-thread form, the merge),
 ``sun_disk.py`` (the per-fragment bitmask rasterizer of tiled soft shadows),
 ``runtime.py`` (Warp initialisation and the kernel cache), ``bench.py``
 (``python -m shadowlab.kernels.bench``), ``aot.py`` (ahead-of-time CUDA compilation).
@@ -28,7 +32,9 @@ from __future__ import annotations
 import importlib.util
 
 #: methods with a kernel version (``compute_shadows(method=...)``)
-METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
+METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid", "clustered_ptsv")
+#: the PSV methods (``kernels/psv.py``)
+PSV_METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
 
 
 def available() -> bool:
@@ -44,10 +50,14 @@ def _require():
 
 def compute_shadows(scene, gbuf, light, method: str = "d_psv", **options):
     """Run a method with the kernels; same options and counters as
-    ``shadowlab.compute_shadows`` (see ``kernels.psv.run``)."""
+    ``shadowlab.compute_shadows`` (see ``kernels.psv.run``, ``kernels.clustered_ptsv.run``;
+    the latter also takes ``form="lanes"`` (faithful) or ``"warp"`` (fast))."""
     _require()
     if method not in METHODS:
         raise ValueError(f"no kernel version of {method!r}; available: {', '.join(METHODS)}")
+    if method == "clustered_ptsv":
+        from . import clustered_ptsv
+        return clustered_ptsv.run(scene, gbuf, light, **options)
     from . import psv
     return psv.run(method, scene, gbuf, light, **options)
 
@@ -73,5 +83,5 @@ def sun_disk_visibility(*args, **kw):
     return sun_disk.visibility(*args, **kw)
 
 
-__all__ = ["METHODS", "available", "compute_shadows", "psv_build", "psv_query",
+__all__ = ["METHODS", "PSV_METHODS", "available", "compute_shadows", "psv_build", "psv_query",
            "sun_disk_visibility"]

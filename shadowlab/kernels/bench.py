@@ -45,7 +45,7 @@ def bench_psv(size: int, repeats: int, scene_name: str = "gate", params=None) ->
     gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(size, size)))
     out = {"scene": scene.name, "triangles": scene.num_triangles, "size": size,
            "methods": {}}
-    for m in kernels.METHODS:
+    for m in kernels.PSV_METHODS:
         t0 = time.perf_counter()
         sl.compute_shadows(scene, gbuf, view.light, method=m)
         jax_cold = time.perf_counter() - t0
