@@ -17,7 +17,10 @@ def test_kernels_compile_to_ptx(arch):
     out = aot.compile_ptx(arch)
     assert set(out) == set(aot.MODULES)
     expected = {"shadowlab.kernels.psv": ("top_insert", "top_query", "own_depth"),
-                "shadowlab.kernels.sun_disk": ("rasterize",)}
+                "shadowlab.kernels.sun_disk": ("rasterize",),
+                "shadowlab.kernels.clustered_ptsv": (
+                    "setup", "build_lanes", "build_tile", "compact_pointers", "existence_bits",
+                    "pad_boxes", "traverse_lanes", "traverse_warp", "merge")}
     for name, path in out.items():
         ptx = path.read_bytes().decode("ascii", "replace")
         assert re.search(rf"^\.target sm_{arch}\b", ptx, re.M), name
@@ -30,3 +33,11 @@ def test_kernels_compile_to_ptx(arch):
     assert "atom.global.cas" in ptx or "atom.cas" in ptx       # the CAS on the links
     # no contraction (fuse_fp=False -> --fmad=false): only the explicit XLA-matching FMAs
     assert len(re.findall(r"\bfma\.rn\.f32", ptx)) == 5
+    # clustered PTSV: the atomics of Algorithm 1 (OR of accepts, AND when pruning, the job
+    # counters), count-leading-zeros, popcount, and the faithful form's 32-lane reductions
+    ptx = out["shadowlab.kernels.clustered_ptsv"].read_bytes().decode("ascii", "replace")
+    for op in ("atom.global.or", "atom.global.and", "atom.global.add", "clz.b32", "popc.b32",
+               "bar.sync"):
+        assert op in ptx, op
+    src = aot.cuda_source_path(out["shadowlab.kernels.clustered_ptsv"]).read_text()
+    assert re.search(r"^#define WP_TILE_BLOCK_DIM 32$", src, re.M)     # a tile is one warp

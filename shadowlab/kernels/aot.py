@@ -18,7 +18,8 @@ from pathlib import Path
 from .runtime import init
 
 #: kernel files compiled ahead of time
-MODULES = ("shadowlab.kernels.psv", "shadowlab.kernels.sun_disk")
+MODULES = ("shadowlab.kernels.psv", "shadowlab.kernels.sun_disk",
+           "shadowlab.kernels.clustered_ptsv")
 
 
 def nvrtc_available() -> bool:

@@ -48,7 +48,8 @@ import warp as wp
 from .psv import fma32, xla_contracts
 from .runtime import init
 
-wp.set_module_options({"fuse_fp": False, "enable_backward": False})
+# block_dim 32: the faithful kernels' tiles are one warp (their CUDA build, ahead of time)
+wp.set_module_options({"fuse_fp": False, "enable_backward": False, "block_dim": 32})
 
 MAX_LEVELS = 8                         # mask levels + 1 (keys of at most 32 bits: 7 levels)
 SENTINEL = 0xFFFFFFFF                  # "no key" (keys have fewer than 32 bits): ~0 in kernels
