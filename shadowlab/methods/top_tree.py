@@ -329,91 +329,99 @@ def build_sequential(inp: BuildInput, wedge: str = "conservative") -> TopTree:
 
 # --------------------------------------------------------------------------- parallel build
 
-def _build_impl(planes, verts, key, inv_dist, inv_vdist, count, margin, cap_extra, zero,
-                    *, wedge):
-    """Round-based deterministic build (see :func:`build_parallel`)."""
+def _round_impl(st, lanes, nlive, planes, verts, key, inv_dist, inv_vdist, margin, cap_extra,
+                zero, *, wedge):
+    """One build round for the pending triangles ``lanes`` (see :func:`build_parallel`).
+
+    ``st``: wedge [N + 1], depth [C + 1] and the claim table [2N + 1] (every entry
+    ``big`` between rounds), each with a scratch entry at the end; donated, updated in
+    place. The winners' links (pos, inter, anc, level, status) are set by the host.
+    ``lanes``: rank, cur (first node of the volume to descend), last, steps [B], sorted
+    by rank; lanes ``>= nlive`` are padding.
+    """
     c = key.shape[0]
     n = 4 * c
-    dt = planes.dtype
-    plane = planes.reshape(n, 4)
-    rank = jnp.arange(c, dtype=jnp.int32)
-    mul = lambda a, b: _opaque(a * b, zero)  # noqa: E731
+    b = lanes["rank"].shape[0]
+    lane = jnp.arange(b, dtype=jnp.int32)
+    live = lane < nlive
+    mul = lambda a, x: _opaque(a * x, zero)  # noqa: E731
     big = jnp.int32(2 ** 31 - 1)
-    root_key = 2 * n                          # the claim key of the empty root slot
+    r = lanes["rank"]
+    cur = lanes["cur"]
+    w = cur >> 2
 
-    st = dict(
-        pos=jnp.full(n, -1, jnp.int32), inter=jnp.full(n, -1, jnp.int32),
-        wedge=jnp.full(n, -jnp.inf, dt), depth=jnp.full(c, jnp.inf, dt),
-        anc=jnp.full(c, -1, jnp.int32), level=jnp.full(c, -1, jnp.int32),
-        status=jnp.zeros(c, jnp.int32),
-        pending=rank < count,
-        cur=jnp.full(c, -1, jnp.int32),       # node to visit next; -1 = claim the root
-        claim=jnp.where(rank < count, root_key, -1).astype(jnp.int32),
-        last=jnp.full(c, -1, jnp.int32), steps=jnp.zeros(c, jnp.int32),
-        root=jnp.int32(-1), rounds=jnp.int32(0))
+    def g(arr, i):
+        return arr.at[i].get(mode="promise_in_bounds")
 
-    def descend_step(s):
-        act = s["pending"] & (s["claim"] < 0)
-        node = jnp.where(act, s["cur"], 0)
-        sv = node >> 2
-        depth = s["depth"].at[jnp.where(act, sv, c)].min(key, mode="drop")
-        vals = _values(jnp, mul, plane[node], verts)
-        is_cap = (node & 3) == 3
-        code = _classify(jnp, mul, vals, is_cap, margin, cap_extra)
-        steps = s["steps"] + act
-        drop = act & (code == 1) & is_cap
-        down = act & (code == 1) & ~is_cap
-        isect = act & (code == 2)
-        wcand = _wedge_candidate(jnp, mul, vals, inv_dist, inv_vdist, wedge)
-        wmask = isect & ~is_cap & (wedge != "off")
-        wedge_v = s["wedge"].at[jnp.where(wmask, node, n)].max(wcand, mode="drop")
-        child = jnp.where(code == 2, s["inter"][node], s["pos"][node])
-        side = act & (code != 1)
-        claim = jnp.where(side & (child < 0), 2 * node + (code == 2), s["claim"])
-        cur = jnp.where(down, node + 1, jnp.where(side & (child >= 0), child, s["cur"]))
-        last = jnp.where(isect, node, s["last"])
-        status = jnp.where(drop, STATUS_DROPPED, s["status"])
-        return dict(s, depth=depth, wedge=wedge_v, steps=steps, claim=claim, cur=cur,
-                    last=last, status=status, pending=s["pending"] & ~drop)
-
-    def descend_cond(s):
-        return jnp.any(s["pending"] & (s["claim"] < 0))
-
-    def round_body(s):
-        s = jax.lax.while_loop(descend_cond, descend_step, s)
-        stop = s["pending"]                               # all pending now hold a claim
-        ck = jnp.where(stop, s["claim"], root_key + 1)
-        win = jnp.full(root_key + 2, big, jnp.int32).at[ck].min(rank)
-        wr = win[ck]
-        won = stop & (wr == rank)
-        first = 4 * rank
-        node = ck >> 1
-        is_int = (ck & 1) == 1
-        idx_p = jnp.where(won & ~is_int & (ck < root_key), node, n)
-        idx_i = jnp.where(won & is_int & (ck < root_key), node, n)
-        pos = s["pos"].at[idx_p].set(first, mode="drop")
-        inter = s["inter"].at[idx_i].set(first, mode="drop")
-        root = jnp.where(jnp.any(won & (ck == root_key)), 4 * win[root_key], s["root"])
-        anc = jnp.where(won, s["last"], s["anc"])
-        level = jnp.where(won, s["steps"], s["level"])
-        status = jnp.where(won, STATUS_MERGED, s["status"])
-        lost = stop & ~won
-        cur = jnp.where(lost, 4 * wr, s["cur"])
-        claim = jnp.where(lost, -1, jnp.where(won, -1, s["claim"]))
-        return dict(s, pos=pos, inter=inter, root=root.astype(jnp.int32), anc=anc, level=level,
-                    status=status, pending=s["pending"] & ~won, cur=cur, claim=claim,
-                    rounds=s["rounds"] + 1)
-
-    s = jax.lax.while_loop(lambda s: jnp.any(s["pending"]), round_body, st)
-    merged = s["status"] == STATUS_MERGED
-    depth = jnp.where(merged, jnp.minimum(s["depth"], key), s["depth"])
-    return (s["pos"], s["inter"], s["wedge"], depth, s["anc"], s["level"], s["status"],
-            s["root"], s["rounds"])
+    # The volume being descended was merged in the previous round, so its children are
+    # all empty: each pending triangle passes 1-4 of its nodes and claims a child slot
+    # (or is dropped at its cap). The four nodes are classified at once, one 1D array
+    # per coordinate (no [B, 3] rows or reductions: each is a separate pass on XLA/CPU);
+    # the same products and sums as :func:`_values`, min/max are exact.
+    vx = [g(verts[3 * k], r) for k in range(3)]
+    vy = [g(verts[3 * k + 1], r) for k in range(3)]
+    vz = [g(verts[3 * k + 2], r) for k in range(3)]
+    vals, codes = [], []
+    for jj in range(4):
+        pa, pb, pc, pd = (g(planes[4 * jj + i], w) for i in range(4))
+        v3 = [((mul(vx[k], pa) + mul(vy[k], pb)) + mul(vz[k], pc)) + pd for k in range(3)]
+        hi = jnp.minimum(jnp.minimum(v3[0], v3[1]), v3[2])
+        lo = jnp.maximum(jnp.maximum(v3[0], v3[1]), v3[2])
+        if jj < 3:
+            cj = jnp.where(hi > margin, 1, jnp.where(lo < -margin, 0, 2))
+        else:
+            cj = jnp.where(lo < -(margin + cap_extra), 1, jnp.where(hi > margin, 0, 2))
+        vals.append(v3)
+        codes.append(cj)
+    j = jnp.where(codes[0] != 1, 0, jnp.where(codes[1] != 1, 1, jnp.where(codes[2] != 1, 2, 3)))
+    code = jnp.where(j == 0, codes[0], jnp.where(j == 1, codes[1],
+                                                 jnp.where(j == 2, codes[2], codes[3])))
+    val = [jnp.where(j == 0, vals[0][k], jnp.where(j == 1, vals[1][k], vals[2][k]))
+           for k in range(3)]
+    if wedge == "vertex":
+        ivd = [g(inv_vdist[k], r) for k in range(3)]
+        wcand = jnp.maximum(jnp.maximum(mul(jnp.abs(val[0]), ivd[0]), mul(jnp.abs(val[1]), ivd[1])),
+                            mul(jnp.abs(val[2]), ivd[2]))
+    else:
+        amax = jnp.maximum(jnp.maximum(jnp.abs(val[0]), jnp.abs(val[1])), jnp.abs(val[2]))
+        wcand = mul(amax, g(inv_dist, r))
+    # Materialize the classification once: every later output would otherwise recompute
+    # it in its own loop fusion (XLA/CPU).
+    jc, wcand = jax.lax.optimization_barrier((j | (code << 2), wcand))
+    j, code = jc & 3, jc >> 2
+    node = cur + j
+    steps = lanes["steps"] + j + 1
+    # Every scatter and gather below is in bounds: the arrays carry one scratch entry
+    # (index n, c or 2n) that masked-out lanes write to (bounds-checked scatters with
+    # dropped indices cost about twice as much on XLA/CPU).
+    pib = "promise_in_bounds"
+    depth = st["depth"].at[jnp.where(live, w, c)].min(g(key, r), mode=pib)
+    drop = live & (j == 3) & (code == 1)
+    isect = live & (code == 2)
+    wmask = isect & (j < 3) & (wedge != "off")
+    wedge_v = st["wedge"].at[jnp.where(wmask, node, n)].max(wcand, mode=pib)
+    claimant = live & ~drop
+    ck = jnp.where(claimant, 2 * node + (code == 2), 2 * n)
+    table = st["table"].at[ck].min(lane, mode=pib)        # lowest rank = lowest lane
+    wl = jnp.where(claimant, g(table, ck), lane)
+    table = table.at[ck].set(big, mode=pib)
+    won = claimant & (wl == lane)
+    # Per lane: node | isect << 28 | drop << 29 | won << 30 (the host links the winners).
+    word = node | (isect.astype(jnp.int32) << 28) | (drop.astype(jnp.int32) << 29) | (
+        won.astype(jnp.int32) << 30)
+    out = dict(word=word, cur=4 * g(r, wl), steps=steps,
+               last=jnp.where(isect, node, lanes["last"]))
+    return dict(wedge=wedge_v, depth=depth, table=table), out
 
 
 @functools.lru_cache(maxsize=None)
-def _build_kernel(wedge: str):
-    return jax.jit(functools.partial(_build_impl, wedge=wedge))
+def _round_kernel(wedge: str):
+    return jax.jit(functools.partial(_round_impl, wedge=wedge), donate_argnums=(0, 1))
+
+
+@jax.jit
+def _final_depth(depth, status, key):
+    return jnp.where(status == STATUS_MERGED, jnp.minimum(depth, key), depth)
 
 
 def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> TopTree:
@@ -426,20 +434,97 @@ def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> 
     volume's first node in the next round. A triangle's path only depends on the
     lower-ranked triangles merged on it, so the result equals sequential insertion in
     rank order node for node (checked in tests/test_top_tree.py).
+
+    Round 0 merges rank 0 at the root. In every later round a pending triangle descends
+    exactly one volume, the one merged in the previous round at the slot it lost (whose
+    children are still empty), so a round is one vectorized classification against that
+    volume's four planes. Between rounds the host compacts the pending triangles into
+    the smallest of 2 sizes per octave that holds them (timed as ``build_compact``), so
+    the work follows the number of pending triangles, not the capacity.
     """
     import contextlib
-    stage = timer.stage("build_setup") if timer is not None else contextlib.nullcontext()
+    stage = (timer.stage if timer is not None
+             else lambda name: contextlib.nullcontext())
     dt = inp.planes.dtype.type
-    with stage:
-        args = (jnp.asarray(inp.planes), jnp.asarray(inp.verts), jnp.asarray(inp.key),
-                jnp.asarray(inp.inv_dist), jnp.asarray(inp.inv_vdist), jnp.int32(inp.count),
+    c = inp.key.shape[0]
+    n = 4 * c
+    count = inp.count
+    with stage("build_setup"):
+        pl = inp.planes.reshape(c, 16)
+        vt = inp.verts.reshape(c, 9)
+        args = (tuple(jnp.asarray(pl[:, i].copy()) for i in range(16)),
+                tuple(jnp.asarray(vt[:, i].copy()) for i in range(9)), jnp.asarray(inp.key),
+                jnp.asarray(inp.inv_dist), tuple(jnp.asarray(inp.inv_vdist[:, i].copy())
+                                                 for i in range(3)),
                 jnp.asarray(dt(inp.margin)), jnp.asarray(dt(inp.cap_extra)), jnp.int32(0))
-    kernel = _build_kernel(wedge)
-    out = timer.run("build", kernel, *args) if timer is not None else kernel(*args)
-    stage = timer.stage("build_setup") if timer is not None else contextlib.nullcontext()
-    with stage:
-        pos, inter, wedge_v, depth, anc, level, status, root, rounds = (np.asarray(o)
-                                                                        for o in out)
-        return TopTree(inp.planes.reshape(-1, 4).copy(), pos, inter, wedge_v, depth, anc,
-                       level, status, inp.tri.copy(), inp.bound.copy(), int(root), inp.count,
+    kernel = _round_kernel(wedge)
+    with stage("build_compact"):
+        pos = np.full(n, -1, np.int32)
+        inter = np.full(n, -1, np.int32)
+        anc = np.full(c, -1, np.int32)
+        level = np.full(c, -1, np.int32)
+        status = np.zeros(c, np.int32)
+        # One scratch entry past the end of every device array (see _round_impl).
+        st = dict(wedge=np.full(n + 1, -np.inf, dt), depth=np.full(c + 1, np.inf, dt),
+                  table=np.full(2 * n + 1, 2 ** 31 - 1, np.int32))
+        root, rounds = -1, 0
+        if count > 0:                 # round 0: rank 0 claims the empty root alone
+            root, rounds = 0, 1
+            status[0], level[0] = STATUS_MERGED, 0
+        rank = np.arange(1, count, dtype=np.int32)
+        cur = np.zeros(len(rank), np.int32)
+        last = np.full(len(rank), -1, np.int32)
+        steps = np.zeros(len(rank), np.int32)
+        st = {k: jnp.asarray(v) for k, v in st.items()}
+    while len(rank):
+        with stage("build_compact"):
+            live = len(rank)
+            b = _bucket(live)
+            lanes = {"rank": _pad(rank, b), "cur": _pad(cur, b), "last": _pad(last, b, -1),
+                     "steps": _pad(steps, b)}
+            lanes = {k: jnp.asarray(v) for k, v in lanes.items()}
+        call = (st, lanes, jnp.int32(live), *args)
+        if timer is not None:
+            st, out = timer.run("build", kernel, *call)
+        else:
+            st, out = kernel(*call)
+        rounds += 1
+        with stage("build_compact"):
+            word = np.asarray(out["word"])[:live]
+            node = word & ((1 << 28) - 1)
+            isect = (word >> 28) & 1
+            won = np.flatnonzero((word >> 30) & 1)
+            wr = rank[won]
+            new_last = np.asarray(out["last"])[:live]
+            new_steps = np.asarray(out["steps"])[:live]
+            wi = won[isect[won] == 1]
+            wp = won[isect[won] == 0]
+            inter[node[wi]] = 4 * rank[wi]
+            pos[node[wp]] = 4 * rank[wp]
+            status[wr] = STATUS_MERGED
+            anc[wr] = new_last[won]
+            level[wr] = new_steps[won]
+            status[rank[((word >> 29) & 1) == 1]] = STATUS_DROPPED
+            keep = np.flatnonzero((word & (3 << 29)) == 0)      # neither dropped nor won
+            rank = rank[keep]
+            cur = np.asarray(out["cur"])[:live][keep]
+            last = new_last[keep]
+            steps = new_steps[keep]
+    with stage("build_setup"):
+        depth = _final_depth(st["depth"][:c], jnp.asarray(status), args[2])
+        wedge_v = np.asarray(st["wedge"])[:n]
+        return TopTree(inp.planes.reshape(-1, 4).copy(), pos, inter, wedge_v, np.asarray(depth),
+                       anc, level, status, inp.tri.copy(), inp.bound.copy(), int(root), count,
                        int(rounds), inp.margin)
+
+
+def _bucket(n: int) -> int:
+    """Lane capacity for ``n`` pending triangles: 2 sizes per octave, at least 256."""
+    top = 1 << (max(n, 256) - 1).bit_length()
+    return top * 3 // 4 if n <= top * 3 // 4 else top
+
+
+def _pad(a: np.ndarray, cap: int, fill=0) -> np.ndarray:
+    o = np.full(cap, fill, a.dtype)
+    o[: len(a)] = a
+    return o
