@@ -65,7 +65,6 @@ def run(cfg: dict) -> dict:
         "funnel": np.asarray(funnel, float),
         "cluster_funnel": np.asarray(cluster, float),
         "lengths": np.stack(lengths),
-        "active": first.counters["tile_list_lengths"] >= 0,
         "same_visibility": np.asarray([np.array_equal(v, vis[0]) for v in vis]),
         "list_per_pixel": first.counters["tile_triangles_per_pixel"],
         "rasterized_per_pixel": first.counters["rasterized_per_pixel"],

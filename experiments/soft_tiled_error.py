@@ -202,9 +202,12 @@ def plot(arrays: dict):
 def check(arrays: dict, cfg: dict) -> None:
     labels = list(arrays["labels"])
     tiled = np.array(["overlap" not in lab for lab in labels])
+    paper = np.array(["overlap" not in lab and "exact" not in lab for lab in labels])
     assert np.all(arrays["mae"][tiled] <= float(cfg["max_mae"])), dict(zip(labels, arrays["mae"]))
-    # the truth is an order of magnitude better than what it measures
-    assert float(arrays["truth_self_mae"]) < 0.5 * float(np.min(arrays["mae"][tiled]))
+    # the truth is much better than what it measures (the exact variant comes close to
+    # the truth's own noise: it is only checked to beat the paper's variants)
+    assert float(arrays["truth_self_mae"]) < 0.5 * float(np.min(arrays["mae"][paper]))
+    assert arrays["mae"][labels.index("16x16 rot exact")] <= np.min(arrays["mae"][paper])
     # the naive overlap sum double-counts: worse than the finest grid
     fine = labels.index(f"{cfg['grids'][-1]}")
     assert arrays["mae"][labels.index("overlap sum")] > arrays["mae"][fine]

@@ -309,7 +309,8 @@ def tile_bounds(camera, depth: np.ndarray, relevant: np.ndarray, half_z: bool, p
     sup = np.where(relevant, depth, -np.inf)
     zmin, zmax = inf.min(1), sup.max(1)
     if half_z:
-        mid = 0.5 * (zmin + zmax)
+        mid = np.where(relevant.any(1), 0.5 * (np.minimum(zmin, 1e300) + np.maximum(zmax, -1e300)),
+                       0.0)
         half = (depth > mid[:, None]).astype(np.int64)
     else:
         half = np.zeros(depth.shape, np.int64)
