@@ -143,11 +143,16 @@ def blocker_cones(tri: np.ndarray, groups: np.ndarray | None, light: SphereLight
             "always": always}
 
 
+def _split(v):
+    """A [..., 3] array as a tuple of three [...] arrays (structure of arrays)."""
+    return tuple(v[..., i] for i in range(3))
+
+
 def _cone_dist(p, apex, axis, sin_a, cos_a):
-    """Distance [...] from points p [..., 3] to infinite solid cones (broadcast)."""
-    v = p - apex
-    h = jnp.sum(v * axis, -1)
-    vv = jnp.sum(v * v, -1)
+    """Distance [...] from points p to infinite solid cones; p, apex, axis: 3-tuples."""
+    v = tuple(p[i] - apex[i] for i in range(3))
+    h = v[0] * axis[0] + v[1] * axis[1] + v[2] * axis[2]
+    vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
     q = jnp.sqrt(jnp.maximum(vv - h * h, 0.0))
     side = q * cos_a - h * sin_a
     return jnp.where(side <= 0, 0.0,
@@ -167,27 +172,35 @@ def cone_hits_capsule(cone, s0, s1, r0, r1):
     Returns:
         bool [...].
     """
-    apex, axis, sa, ca = cone["apex"], cone["axis"], cone["sin"], cone["cos"]
+    apex, axis, sa, ca = _split(cone["apex"]), _split(cone["axis"]), cone["sin"], cone["cos"]
+    s0, s1 = _split(s0), _split(s1)
+    ds = tuple(s1[i] - s0[i] for i in range(3))
 
     def f(t):
-        p = s0 + t[..., None] * (s1 - s0)
+        p = tuple(s0[i] + t * ds[i] for i in range(3))
         return _cone_dist(p, apex, axis, sa, ca) - (r0 + t * (r1 - r0))
 
     shape = jnp.broadcast_shapes(r0.shape, sa.shape)
     lo = jnp.zeros(shape, r0.dtype)
     hi = jnp.ones(shape, r0.dtype)
     g = (math.sqrt(5) - 1) / 2
-    for _ in range(GOLDEN_ITERS):
-        a = hi - g * (hi - lo)
-        b = lo + g * (hi - lo)
-        left = f(a) <= f(b)
+    a = hi - g * (hi - lo)
+    b = lo + g * (hi - lo)
+    fa, fb = f(a), f(b)
+    for _ in range(GOLDEN_ITERS):          # one new evaluation per step
+        left = fa <= fb                      # the minimum lies in [lo, b] or in [a, hi]
         hi = jnp.where(left, b, hi)
         lo = jnp.where(left, lo, a)
+        x = jnp.where(left, hi - g * (hi - lo), lo + g * (hi - lo))
+        fx = f(x)
+        a, b, fa, fb = (jnp.where(left, x, b), jnp.where(left, a, x),
+                        jnp.where(left, fx, fb), jnp.where(left, fa, fx))
     t = 0.5 * (lo + hi)
-    lip = jnp.linalg.norm(s1 - s0, axis=-1) + jnp.abs(r1 - r0)
+    lip = jnp.sqrt(ds[0] ** 2 + ds[1] ** 2 + ds[2] ** 2) + jnp.abs(r1 - r0)
     best = jnp.minimum(jnp.minimum(f(t), f(jnp.zeros_like(t))), f(jnp.ones_like(t)))
     meets = best - lip * (hi - lo) <= 0
-    reach = jnp.maximum(jnp.sum(s0 * axis, -1) + r0, jnp.sum(s1 * axis, -1) + r1)
+    reach = jnp.maximum(s0[0] * axis[0] + s0[1] * axis[1] + s0[2] * axis[2] + r0,
+                        s1[0] * axis[0] + s1[1] * axis[1] + s1[2] * axis[2] + r1)
     return (meets & (reach >= cone["t0"])) | cone["always"]
 
 
@@ -217,19 +230,24 @@ def _gather_test(cone, planes, s0, s1, r0, r1):
     return keep
 
 
-@jax.jit
-def _pair_test(cone, tile_of, bounds):
-    """bool [P, 2]: cone p against the two depth halves of tile tile_of[p].
+def _pair_test(cone, tile_of, bounds, halves=2):
+    """bool [P, 2]: cone p against the depth halves of tile tile_of[p].
 
     bounds: [Nt, 2, 8] = (s0 xyz, r0, s1 xyz, r1) per half; r0 < 0 marks an empty half.
+    Without half-z (``halves=1``) half 1 is empty and not tested.
     """
-    b = bounds[tile_of]                                        # [P, 2, 8]
     out = []
     for half in range(2):
-        bb = b[:, half]
+        if half >= halves:
+            out.append(jnp.zeros(tile_of.shape, bool))
+            continue
+        bb = bounds[:, half][tile_of]                          # [P, 8]
         hit = cone_hits_capsule(cone, bb[:, 0:3], bb[:, 4:7], bb[:, 3], bb[:, 7])
         out.append(hit & (bb[:, 3] >= 0))
     return jnp.stack(out, -1)
+
+
+_PAIR_TESTS = {h: jax.jit(functools.partial(_pair_test, halves=h)) for h in (1, 2)}
 
 
 # ------------------------------------------------------------------ per-pixel setup
@@ -607,28 +625,28 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
                 bounds = capsule_to_sphere(bounds)
             active = relevant.any(1)
             act_tiles = np.flatnonzero(active)
-        with timer.stage("tile_cull"):
+        with timer.stage("tile_lists"):
             tiles_p = np.repeat(act_tiles, n_gather_cl)
             cl_p = np.tile(np.arange(n_gather_cl), len(act_tiles))
         jb = jnp.asarray(bounds.astype(dtype))
         cluster_pairs = len(tiles_p)
         if cluster_cull and tile_cull and len(tiles_p):
-            hit = _run_pairs(timer, g_cl_cone, cl_p, tiles_p, jb, dtype)
+            hit = _run_pairs(timer, g_cl_cone, cl_p, tiles_p, jb, dtype, 2 if half_z else 1)
             keep = hit.any(1)
             tiles_p, cl_p, cl_half = tiles_p[keep], cl_p[keep], hit[keep]
         else:
             cl_half = np.ones((len(tiles_p), 2), bool)
         cluster_survivors = len(tiles_p)
-        with timer.stage("tile_cull"):
+        with timer.stage("tile_lists"):
             reps = (g_members[cl_p] >= 0).sum(1)
             tri_t, tri_g = _expand(tiles_p, cl_p, g_members)
             tri_h = np.repeat(cl_half, reps, axis=0)
         triangle_pairs = len(tri_t)
         if tile_cull and len(tri_t):
-            hit = _run_pairs(timer, g_tri_cone, tri_g, tri_t, jb, dtype) & tri_h
+            hit = _run_pairs(timer, g_tri_cone, tri_g, tri_t, jb, dtype, 2 if half_z else 1) & tri_h
             keep = hit.any(1)
             tri_t, tri_g, tri_h = tri_t[keep], tri_g[keep], hit[keep]
-        with timer.stage("tile_cull"):
+        with timer.stage("tile_lists"):
             order = np.argsort(tri_t, kind="stable")
             tri_t, tri_g, tri_h = tri_t[order], tri_g[order], tri_h[order]
             lengths = np.bincount(tri_t, minlength=n_tiles)
@@ -757,7 +775,7 @@ def _pad_cone(cone: dict) -> dict:
     return out
 
 
-def _run_pairs(timer, cone, which, tile_of, bounds, dtype):
+def _run_pairs(timer, cone, which, tile_of, bounds, dtype, halves):
     """bool [P, 2]: cone ``which[p]`` against tile ``tile_of[p]``'s two halves."""
     n = len(which)
     cap = bucket(n, minimum=1024, steps=8)
@@ -766,7 +784,8 @@ def _run_pairs(timer, cone, which, tile_of, bounds, dtype):
     t = np.zeros(cap, np.int64)
     t[:n] = tile_of
     c = {k: jnp.asarray(v[w] if v.dtype == bool else v[w].astype(dtype)) for k, v in cone.items()}
-    out = timer.run("tile_cull", _pair_test, c, jnp.asarray(t.astype(np.int32)), bounds)
+    out = timer.run("tile_cull", _PAIR_TESTS[halves], c, jnp.asarray(t.astype(np.int32)),
+                    bounds)
     return np.asarray(out)[:n]
 
 
