@@ -505,8 +505,8 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
     ``options`` are the registry options of ``method`` (defaults filled in the same way);
     ``precision`` must be float32 and ``build`` is ignored (the kernel builds). Counters
     are those of ``methods.psv`` except ``build_rounds`` and ``query_chunks`` (no rounds
-    or chunks here); timings: ``build``, ``query`` (seconds, compile excluded: the
-    kernels are loaded before the clock starts).
+    or chunks here), plus the kernel's ``cas_failures``; timings: ``build``, ``query``
+    (seconds, compile excluded: the kernels are loaded before the clock starts).
     """
     import time
 
@@ -546,6 +546,7 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
         "tree_nodes": st["tree_nodes"], "tree_depth": st["tree_depth"],
         "dropped_triangles": st["dropped_triangles"],
         "intersection_triangles": st["intersection_triangles"],
+        "cas_failures": bstats["cas_failures"],
     }
     if kind != "stackless":
         counters["stack_max"] = int(res["stack_max"].max(initial=0))
@@ -557,7 +558,7 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
     if kind == "hybrid":
         counters["stackless_switches"] = int(res["switches"].sum())
         counters["stackless_switches_per_pixel"] = samples.scatter(res["switches"], fill=0)
-    opts = dict(o, schedule=schedule, cas_failures=bstats["cas_failures"])
+    opts = dict(o, schedule=schedule)
     return ShadowResult(lit, counters, {"build": t1 - t0, "query": t2 - t1, "total": t2 - t0},
                         f"kernels.{method}", opts)
 
