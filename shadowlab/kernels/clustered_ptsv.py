@@ -40,6 +40,7 @@ machine the kernels place the same FMAs explicitly (``fma`` flag, see
 
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
@@ -949,6 +950,7 @@ def build_hierarchy(tree, table: np.ndarray, keys: np.ndarray, coords: np.ndarra
     return Hierarchy(tree, storage, masks, moff, ptr, poff, lo, hi, smin, boff, counts)
 
 
+@functools.lru_cache(maxsize=16)
 def implicit_tables(tree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Implicit box coordinates per (box level, axis, coordinate), computed by
     ``cluster_hierarchy.implicit_bounds`` itself (each padded coordinate depends on its
@@ -978,6 +980,22 @@ def implicit_tables(tree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             _offsets(sizes).astype(np.int32))
 
 
+@functools.lru_cache(maxsize=16)
+def _sample_stage(tree):
+    """Jitted post-perspective coordinates and cluster keys (``cluster_hierarchy``'s
+    functions) for a tree layout: the build's inputs, computed by JAX."""
+    import jax
+
+    from ..methods import cluster_hierarchy as ch
+
+    @jax.jit
+    def stage(pos, view, px, py):
+        coords = ch.sample_coords(tree, pos, view)
+        keys, saturated = ch.sample_keys(tree, px, py, coords)
+        return coords, keys, saturated
+    return stage
+
+
 def prepare(scene, gbuf, light, o: dict, fma: bool | None = None, setup_from: str = "kernel",
             device: str | None = None) -> dict:
     """Everything before the traversal, as ``clustered_ptsv.run_traversal_method`` does it:
@@ -988,7 +1006,6 @@ def prepare(scene, gbuf, light, o: dict, fma: bool | None = None, setup_from: st
     (``brute_force.setup`` at the method's padded shape) and computes only the
     post-perspective part in the kernel.
     """
-    import jax
     import jax.numpy as jnp
 
     from ..methods import cluster_hierarchy as ch
@@ -997,6 +1014,7 @@ def prepare(scene, gbuf, light, o: dict, fma: bool | None = None, setup_from: st
     from ..scene.view import hard_light
 
     f32 = np.float32
+    t0 = time.perf_counter()
     samples = view_samples(gbuf, light)
     camera = gbuf.camera
     light_h = hard_light(light).homogeneous
@@ -1007,18 +1025,17 @@ def prepare(scene, gbuf, light, o: dict, fma: bool | None = None, setup_from: st
     pos = samples.position.astype(f32)
     view = camera.view_matrix().astype(f32)
 
-    @jax.jit
-    def sample_stage(pos, view, px, py):
-        coords = ch.sample_coords(tree, pos, view)
-        keys, saturated = ch.sample_keys(tree, px, py, coords)
-        return coords, keys, saturated
-
+    sample_stage = _sample_stage(tree)
+    tm = {"samples": time.perf_counter() - t0}
+    t0 = time.perf_counter()
     if samples.count:
         coords, keys, saturated = (np.asarray(x) for x in sample_stage(
             jnp.asarray(pos), jnp.asarray(view), jnp.asarray(px), jnp.asarray(py)))
     else:
         coords, keys, saturated = (np.zeros((0, 3), f32), np.zeros(0, np.uint32),
                                    np.zeros(0, bool))
+    tm["keys"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     qmax = float(coords[:, 2].max()) if samples.count else 1.0
     pmax = float(np.abs(samples.position).max()) if samples.count else 1.0
     tri = scene.triangles.astype(f32)
@@ -1034,7 +1051,8 @@ def prepare(scene, gbuf, light, o: dict, fma: bool | None = None, setup_from: st
     if o["front_face_culling"]:
         culled = cm.front_face_culled(scene, light_h)
     casters = np.flatnonzero(st["valid"] & ~culled).astype(np.int32)
-    return dict(samples=samples, tree=tree, px=px, py=py, pos=pos, coords=coords, keys=keys,
+    tm["setup"] = time.perf_counter() - t0
+    return dict(timings=tm, samples=samples, tree=tree, px=px, py=py, pos=pos, coords=coords, keys=keys,
                 saturated=saturated, scale=scale.astype(f32), bound=bound, casters=casters,
                 culled=culled, table=tile_table(tree, px, py), extra=extra, **st)
 
@@ -1131,6 +1149,8 @@ def traverse(p: dict, hier: Hierarchy, o: dict, form: str = "lanes", workers: in
     iters2 = np.zeros(0, i32)
     if two:
         iters2, _, _, _ = run_pass(tri2, node2, level_l, d + 1, 0)
+    wp.synchronize_device(dev)
+    t_merge = time.perf_counter()
     final = wp.zeros(s, dtype=wp.int32, device=dev)
     ta_only = wp.zeros(s, dtype=wp.int32, device=dev)
     n_s = len(p["keys"])
@@ -1138,7 +1158,9 @@ def traverse(p: dict, hier: Hierarchy, o: dict, form: str = "lanes", workers: in
         wp.launch(merge, dim=n_s, inputs=[common["skeys"], d, common["ta"], hier.moff,
                                           common["shadow"], final, ta_only], device=dev)
     cn = counts.numpy()
-    return {"shadow": final.numpy()[:n_s].astype(bool), "ta_only": ta_only.numpy()[:n_s]
+    shadow = final.numpy()[:n_s].astype(bool)
+    merge_seconds = time.perf_counter() - t_merge
+    return {"merge_seconds": merge_seconds, "shadow": shadow, "ta_only": ta_only.numpy()[:n_s]
                 .astype(bool), "leaf_shadow": common["shadow"].numpy()[:n_s].astype(bool),
                 "tests": common["tests"].numpy()[:n_s].astype(np.int64),
                 "iterations_pass1": iters1, "iterations_pass2": iters2, "pass2_triangles": tri2,
@@ -1157,8 +1179,10 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
                 setup_from: str = "kernel", job_order=None, device=None, **options):
     """``clustered_ptsv`` with the kernels: (``ShadowResult``, details) with the JAX method's
     counters (all but ``frontier_max``, which belongs to the level-synchronous JAX
-    traversal) and timings ``build``, ``setup``, ``traverse``, ``merge`` (the traversal
-    includes the merge kernel; compile excluded: the module is loaded first)."""
+    traversal) and timings ``samples`` (view samples), ``keys`` (JAX: coordinates and
+    cluster keys, the build's inputs), ``setup`` (setup kernel, bias terms, casters),
+    ``build``, ``traverse`` (both passes), ``merge`` (seconds; compile excluded: the
+    module is loaded first)."""
     from ..methods import cluster_hierarchy as ch
     from ..methods.clustered_ptsv import top_jobs
     from ..methods.registry import resolve_options
@@ -1170,7 +1194,6 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     dev = init(device)
     load(dev)
     fma = xla_contracts(np.float32)
-    t0 = time.perf_counter()
     p = prepare(scene, gbuf, light, o, fma, setup_from, dev)
     t1 = time.perf_counter()
     hier = build_hierarchy(p["tree"], p["table"], p["keys"], p["coords"], p["scale"],
@@ -1204,7 +1227,11 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
         "saturated_samples": int(np.asarray(p["saturated"]).sum()),
         "shadowed": int(r["shadow"].sum()), "lit": int(lit.sum()),
     }
-    timings = {"setup": t1 - t0, "build": t2 - t1, "traverse": t3 - t2, "total": t3 - t0}
+    tm = p["timings"]
+    timings = {"samples": tm["samples"], "keys": tm["keys"], "setup": tm["setup"],
+               "build": t2 - t1, "traverse": t3 - t2 - r["merge_seconds"],
+               "merge": r["merge_seconds"]}
+    timings["total"] = sum(timings.values())
     details = dict(r, prepared=p, hierarchy=hier)
     res = ShadowResult(lit, counters, timings, "kernels.clustered_ptsv",
                        dict(o, form=form, workers=workers, setup_from=setup_from))
