@@ -124,6 +124,22 @@ def test_other_arrival_order_changes_the_tree_not_the_shadows():
     assert np.count_nonzero((lit != truth) & gbuf.valid) == 0
 
 
+@pytest.mark.parametrize("method", ["psv", "d_stackless", "d_hybrid"])
+def test_directional_light_equals_jax_and_reference(method):
+    """A light at infinity (homogeneous w = 0): no wedge distance, edge planes through
+    the direction; same tree, lit mask and counters as the JAX method."""
+    scene, light, gbuf, _ = _scene("gate")
+    centre = scene.triangles.reshape(-1, 3).mean(0)
+    sun = sl.DirectionalLight(direction=centre - np.asarray(light.position, float))
+    truth = sl.reference_shadows(scene, gbuf, sun)
+    j = sl.compute_shadows(scene, gbuf, sun, method=method)
+    k = kernels.compute_shadows(scene, gbuf, sun, method=method)
+    assert np.array_equal(k.lit, j.lit)
+    assert _same_counters(j, k) == []
+    assert 0 < k.counters["shadowed"] < k.counters["samples"]
+    assert np.count_nonzero((k.lit != truth) & gbuf.valid) == 0
+
+
 def test_float64_is_refused():
     scene, light, gbuf, _ = _scene("soup")
     with pytest.raises(ValueError, match="float32"):
