@@ -55,8 +55,7 @@ wp.set_module_options({"fuse_fp": False, "enable_backward": False, "block_dim": 
 MAX_LEVELS = 8                         # mask levels + 1 (keys of at most 32 bits: 7 levels)
 SENTINEL = 0xFFFFFFFF                  # "no key" (keys have fewer than 32 bits): ~0 in kernels
 TILE_PIXELS = 64                       # an 8 x 8 tile
-N_COUNTS = 6                           # node tests, accepts, rejects, extra rejects, leaf visits,
-#                                        job-list overflow
+N_COUNTS = 5                           # node tests, accepts, rejects, extra rejects, leaf visits
 FORMS = ("lanes", "warp")
 SETUP_FROM = ("kernel", "jax_world")
 
