@@ -197,6 +197,7 @@ class MethodsConfig:
 
     names: tuple[str, ...]
     options: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    all: bool = False   # names came from "all": methods that cannot run on the light are skipped
 
 
 @dataclasses.dataclass(frozen=True)
@@ -878,7 +879,8 @@ def _read_methods(ctx: _Context, table: dict, reference: ReferenceConfig) -> Met
     _check_keys(ctx, table, "methods", _METHODS_KEYS)
     known = registry.names()
     raw = table.get("names", "all")
-    if raw == "all":
+    every = raw == "all"
+    if every:
         names = tuple(known)
     else:
         listed = [raw] if isinstance(raw, str) else raw
@@ -926,7 +928,7 @@ def _read_methods(ctx: _Context, table: dict, reference: ReferenceConfig) -> Met
         except registry.MethodError as exc:  # pragma: no cover - checked per key above
             raise ConfigError(f"{ctx.where(f'methods.options.{method}')}: "
                               f"methods.options.{method}: {exc}") from exc
-    return MethodsConfig(names=names, options=options)
+    return MethodsConfig(names=names, options=options, all=every)
 
 
 def _read_reference(ctx: _Context, table: dict) -> ReferenceConfig:

@@ -21,8 +21,9 @@ import numpy as np
 from . import io
 from .analysis import compare_hard, compare_soft
 from .analysis.boundary import unexplained_mismatches
-from .methods import compute_shadows, get
+from .methods import MethodError, compute_shadows, get
 from .raycast import reference_shadows, render_gbuffer, soft_reference
+from .scene.view import SphereLight
 
 
 EXPLAIN_LIMIT = 200   # mismatched pixels checked for lying on a shadow boundary
@@ -59,6 +60,28 @@ def _method_summary(frames: list[dict], name: str) -> dict:
     return out
 
 
+def runnable_methods(config, views) -> tuple[list[str], dict[str, str]]:
+    """The methods to run on these views, and {name: reason} for those skipped.
+
+    Soft-shadow methods need an area light (SphereLight). With ``methods.names = "all"``
+    they are skipped (and reported) on a point or directional light; named explicitly
+    they are an error, before any work is done.
+    """
+    light = views[0].light
+    methods, skipped = [], {}
+    for name in config.methods.names:
+        info = get(name)
+        if info.soft and not isinstance(light, SphereLight):
+            reason = (f"computes soft shadows and needs a sphere or sun light; the light is a "
+                      f"{type(light).__name__} (set light.type to sphere or sun)")
+            if not config.methods.all:
+                raise MethodError(f"method {name!r} {reason}")
+            skipped[name] = reason
+            continue
+        methods.append(name)
+    return methods, skipped
+
+
 def run(config, out_dir: str | Path | None = None, progress: bool = True,
         write: bool = True) -> RunOutput:
     """Run ``config`` (a ``shadowlab.config.RunConfig``); write outputs to ``out_dir``
@@ -67,9 +90,7 @@ def run(config, out_dir: str | Path | None = None, progress: bool = True,
 
     scene = config.build_scene()
     views = config.views(scene)
-    methods = list(config.methods.names)
-    for name in methods:
-        get(name)  # fail fast on an unknown name, before any work
+    methods, skipped = runnable_methods(config, views)
     ref_cfg = config.reference
     frames: list[dict] = []
     arrays: dict[str, list] = {"valid": [], "reference": []}
@@ -119,6 +140,7 @@ def run(config, out_dir: str | Path | None = None, progress: bool = True,
         "scene": {"name": scene.name, "report": dataclasses.asdict(scene.report())},
         "frames": frames,
         "summary": {name: _method_summary(frames, name) for name in methods},
+        "skipped": skipped,
     }
     files = []
     if write:
@@ -174,6 +196,8 @@ def format_table(metrics: dict) -> str:
                      f"{s['median_seconds']:>9.4f} {s['compile_seconds']:>9.3f} "
                      f"{ratio if ratio is None else round(ratio, 2):>9} "
                      f"{s.get('tests', '-'):>14}")
+    for name, reason in metrics.get("skipped", {}).items():
+        lines.append(f"{name:<16} skipped: {reason}")
     return "\n".join(lines)
 
 

@@ -127,3 +127,38 @@ def test_bench_writes_json(tmp_path, capsys):
     assert row["ratio_to_reference"] == pytest.approx(
         row["median_seconds"] / case["reference"]["median_seconds"])
     assert "compile_seconds" in row and "test" in row["stages"]
+
+
+def test_default_run_with_every_method_skips_soft_methods_on_a_point_light(tmp_path, capsys):
+    """The README's first command runs every registered method; none may break it."""
+    from shadowlab import methods
+
+    assert main(["run", "--set", "camera.resolution=[24,24]", "--out", str(tmp_path),
+                 "--quiet"]) == 0
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    soft = {n for n in methods.names() if methods.get(n).soft}
+    assert set(metrics["summary"]) == set(methods.names()) - soft
+    assert set(metrics["skipped"]) == soft
+    for name, row in metrics["summary"].items():
+        assert row["mismatches"] == 0, name
+    assert "skipped" in capsys.readouterr().out
+
+
+def test_a_named_soft_method_needs_an_area_light(tmp_path, capsys):
+    assert main(["run", "--set", 'methods.names=["soft_tiled"]', "--out", str(tmp_path),
+                 "--quiet"]) == 2
+    assert "needs a sphere or sun light" in capsys.readouterr().err
+    assert not (tmp_path / "metrics.json").exists()
+
+
+def test_soft_methods_run_against_the_soft_reference(tmp_path):
+    assert main(["run", "--set", "scene.source=terrain", "--set", "scene.params.size=24",
+                 "--set", "camera.resolution=[24,24]", "--set", "reference.soft_rays=16",
+                 "--set", 'methods.names=["soft_tiled","brute_force"]', "--out", str(tmp_path),
+                 "--quiet"]) == 0
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    soft = metrics["summary"]["soft_tiled"]
+    assert 0 <= soft["mae"] < 0.1
+    arrays = np.load(tmp_path / "shadows.npz")
+    assert arrays["soft_reference"].shape == (1, 24, 24)
+    assert metrics["summary"]["brute_force"]["mismatches"] == 0
