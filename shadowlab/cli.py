@@ -30,6 +30,8 @@ def _parser() -> argparse.ArgumentParser:
     _common_config_args(bench)
     bench.add_argument("--size", choices=("ci", "full"), default="full",
                        help="built-in case sizes when no config is given (default: full)")
+    bench.add_argument("--only", action="append", default=[], metavar="NAME",
+                       help="only this built-in case (repeatable; see shadowlab/configs/bench.toml)")
     bench.add_argument("--repeats", type=int, default=5, help="warm runs per method (median)")
     bench.add_argument("--out", default="bench.json", help="JSON results (default: bench.json)")
     bench.add_argument("--quiet", action="store_true")
@@ -77,14 +79,25 @@ def _cmd_scenes(args) -> int:
 
 def _cmd_bench(args) -> int:
     from .bench import default_cases, format_bench, run_bench
-    from .config import load_config
+    from .config import ConfigError, load_config
 
     if args.config:
         configs = [load_config(args.config, args.overrides)]
+        names = [args.config]
     else:
-        configs = [load_config(None, list(case["overrides"]) + args.overrides)
-                   for case in default_cases(args.size)]
-    results = run_bench(configs, repeats=args.repeats, out=args.out, progress=not args.quiet)
+        cases = default_cases(args.size)
+        known = [c["name"] for c in cases]
+        unknown = sorted(set(args.only) - set(known))
+        if unknown:
+            raise ConfigError(f"bench --only: unknown case(s) {', '.join(unknown)}; "
+                              f"{args.size} cases: {', '.join(known)}")
+        cases = [c for c in cases if not args.only or c["name"] in args.only]
+        configs = [load_config(None, list(c["overrides"]) + args.overrides) for c in cases]
+        names = [c["name"] for c in cases]
+    if args.repeats < 1:
+        raise ConfigError(f"bench --repeats must be >= 1, got {args.repeats}")
+    results = run_bench(configs, repeats=args.repeats, out=args.out, progress=not args.quiet,
+                        names=names)
     print(format_bench(results))
     print(f"wrote {args.out}")
     return 0

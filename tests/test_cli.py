@@ -162,3 +162,27 @@ def test_soft_methods_run_against_the_soft_reference(tmp_path):
     arrays = np.load(tmp_path / "shadows.npz")
     assert arrays["soft_reference"].shape == (1, 24, 24)
     assert metrics["summary"]["brute_force"]["mismatches"] == 0
+
+
+def test_bench_soft_method_reports_embree_time_at_equal_error(tmp_path):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--size", "ci", "--repeats", "1", "--out", str(out), "--quiet",
+                 "--set", "scene.source=terrain", "--set", "scene.params.size=24",
+                 "--set", "camera.resolution=[24,24]", "--set", "reference.soft_rays=64",
+                 "--set", 'methods.names=["soft_tiled"]']) == 0
+    case = json.loads(out.read_text())["cases"][0]
+    curve = case["soft_reference"]["curve"]
+    assert [c["rays"] for c in curve] == [4, 16, 64]
+    assert all(c["seconds"] > 0 and 0 <= c["mae"] <= 1 for c in curve)
+    row = case["methods"]["soft_tiled"]
+    assert {"mae", "rmse", "max_error", "ssim"} <= set(row["error"])
+    assert "embree_seconds_at_equal_error" in row
+
+
+def test_embree_time_at_equal_error_interpolates_log_log():
+    from shadowlab.bench import embree_seconds_at_error
+
+    curve = [{"mae": 0.04, "seconds": 1.0}, {"mae": 0.01, "seconds": 16.0}]
+    assert embree_seconds_at_error(curve, 0.02) == pytest.approx(4.0)
+    assert embree_seconds_at_error(curve, 0.001) is None
+    assert embree_seconds_at_error(curve, 0.5) is None
