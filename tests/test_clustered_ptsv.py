@@ -15,12 +15,15 @@ from shadowlab.methods import cluster_hierarchy as ch
 from shadowlab.methods.clustered_ptsv import post_perspective_planes, run_traversal_method
 from shadowlab.scene.procedural import default_view
 
-RES = 64
+# One resolution for every test, and small scenes: with the methods' minimum triangle and
+# sample buckets, every scene here shares the compiled kernels of an option set.
+RES = 48
 SMALL = {"gate": {"trees": 4, "leaves_per_tree": 60, "bars": 5},
          "sphere_grid": {"n": 3, "triangles_per_sphere": 120},
          "fuzzy": {"triangles": 1500, "clusters": 4},
          "terrain": {"size": 16}, "blobs": {"grid": 16, "blobs": 3},
          "soup": {"count": 150}}
+SCENES = sorted(SMALL)
 
 
 @functools.lru_cache(maxsize=None)
@@ -37,47 +40,59 @@ def _mismatches(res, truth, gbuf):
     return int(((res.lit != truth) & gbuf.valid).sum())
 
 
-# Options covering every value of every option (a covering set, not the full product).
+# Three option sets cover every value of every option (with the cap bias below); each
+# runs on every scene (kernels are compiled once per option set, not per scene).
 COMBOS = [
     dict(),
-    dict(bounds="implicit", culling_planes=False),
-    dict(bounds="implicit", passes=2, expand_level=2, prune=True, wave=16),
-    dict(storage="full", passes=2, expand_level=5, front_face_culling=True),
-    dict(bias="cap", leaf_samples="cluster", depth_slices="scaled"),
-    dict(prune=True, wave=8, culling_planes=False, z_bits=4),
+    dict(bounds="implicit", culling_planes=False, passes=2, expand_level=2, prune=True,
+         wave=64),
+    dict(storage="full", front_face_culling=True, leaf_samples="cluster",
+         depth_slices="scaled", z_bits=4),
 ]
 
 
-EXACT_COMBOS = [c for c in COMBOS if c.get("bias") != "cap"]
-
-
-@pytest.mark.parametrize("i,name", list(enumerate(sorted(SMALL))))
-def test_clustered_equals_reference(i, name, precision):
-    # every scene runs two combos; over the six scenes every combo runs at least twice
-    scene, gbuf, light, truth = _setup(name)
-    for opts in (EXACT_COMBOS[i % 5], EXACT_COMBOS[(i + 2) % 5]):
-        res = sl.compute_shadows(scene, gbuf, light, method="clustered_ptsv",
-                                 precision=precision, **opts)
+@pytest.mark.parametrize("opts", COMBOS, ids=["default", "implicit-2pass-prune", "full-ffc-z4"])
+def test_clustered_equals_reference(opts):
+    for name in SCENES:
+        scene, gbuf, light, truth = _setup(name)
+        res = sl.compute_shadows(scene, gbuf, light, method="clustered_ptsv", **opts)
         assert _mismatches(res, truth, gbuf) == 0, (name, opts)
 
 
-@pytest.mark.parametrize("name", ["gate", "soup", "sphere_grid"])
-def test_cap_bias_equals_brute_force(name, precision):
-    scene, gbuf, light, _ = _setup(name)
-    bf = sl.compute_shadows(scene, gbuf, light, method="brute_force", precision=precision,
-                            bias="cap")
-    for method, opts in [("clustered_ptsv", COMBOS[4]), ("ptsv", {"bias": "cap"})]:
-        res = sl.compute_shadows(scene, gbuf, light, method=method, precision=precision, **opts)
-        assert np.array_equal(res.lit, bf.lit), (name, method)
+@pytest.mark.parametrize("method", ["clustered_ptsv", "ptsv"])
+def test_float64_equals_reference(method):
+    for name in ("gate", "soup", "terrain"):
+        scene, gbuf, light, truth = _setup(name)
+        res = sl.compute_shadows(scene, gbuf, light, method=method, precision="float64")
+        assert _mismatches(res, truth, gbuf) == 0, name
 
 
-@pytest.mark.parametrize("i,name", list(enumerate(sorted(SMALL))))
-def test_ptsv_equals_reference(i, name, precision):
-    scene, gbuf, light, truth = _setup(name)
-    for opts in [dict(), dict(culling_planes=False, passes=2, prune=True, wave=16,
-                              front_face_culling=True)][i % 2:]:
-        res = sl.compute_shadows(scene, gbuf, light, method="ptsv", precision=precision, **opts)
+def test_cap_bias_equals_brute_force():
+    for name in ("gate", "soup", "sphere_grid"):
+        scene, gbuf, light, _ = _setup(name)
+        bf = sl.compute_shadows(scene, gbuf, light, method="brute_force", bias="cap")
+        for method in ("clustered_ptsv", "ptsv"):
+            res = sl.compute_shadows(scene, gbuf, light, method=method, bias="cap")
+            assert np.array_equal(res.lit, bf.lit), (name, method)
+
+
+@pytest.mark.parametrize("opts", [dict(), dict(culling_planes=False, passes=2, prune=True,
+                                               wave=64, front_face_culling=True)],
+                         ids=["default", "2pass-prune-ffc"])
+def test_ptsv_equals_reference(opts):
+    for name in SCENES:
+        scene, gbuf, light, truth = _setup(name)
+        res = sl.compute_shadows(scene, gbuf, light, method="ptsv", **opts)
         assert _mismatches(res, truth, gbuf) == 0, (name, opts)
+
+
+def test_frames_share_compiled_kernels():
+    """A second frame (another camera and scene at the same resolution) compiles
+    nothing: camera floats are data, shapes are bucketed."""
+    for name in ("gate", "soup"):
+        scene, gbuf, light, _ = _setup(name)
+        res = sl.compute_shadows(scene, gbuf, light, method="clustered_ptsv")
+    assert res.timings.get("traverse_compile", 0.0) == 0.0
 
 
 # --------------------------------------------------------------------------- hierarchy
@@ -250,19 +265,22 @@ def _loop_traversal(det):
     return out, np.array(iters)
 
 
-@pytest.mark.parametrize("method,opts", [("cluster", dict(bounds="explicit")),
-                                         ("cluster", dict(bounds="implicit", storage="full")),
-                                         ("ptsv", dict())])
-def test_traversal_counters_against_a_loop(method, opts):
+@pytest.mark.parametrize("method,opts,two", [
+    ("cluster", dict(bounds="explicit"), True),
+    ("cluster", dict(bounds="implicit", storage="full"), False),
+    ("ptsv", dict(), False)])
+def test_traversal_counters_against_a_loop(method, opts, two):
     scene = sl.load_scene("gate", trees=2, leaves_per_tree=12, bars=3)
     view = default_view("gate", scene, trees=2, leaves_per_tree=12, bars=3)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(32, 32)))
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(RES, RES)))
     res, det = run_traversal_method(scene, gbuf, view.light, kind=method, precision="float64",
                                     shadow_eps=1e-5, bias="receiver", **opts)
     want, iters = _loop_traversal(det)
     for key, value in want.items():
         assert res.counters[key] == value, key
     np.testing.assert_array_equal(det["iterations_pass1"], iters)
+    if not two:
+        return
     # two passes: same work, split into (triangle, node) jobs
     res2, det2 = run_traversal_method(scene, gbuf, view.light, kind=method, precision="float64",
                                       shadow_eps=1e-5, bias="receiver", passes=2,

@@ -217,19 +217,27 @@ def sample_keys_numpy(tree: TreeLayout, px, py, depth) -> np.ndarray:
 
 # --------------------------------------------------------------------------- bounds
 
-def implicit_bounds(tree: TreeLayout, level: int, node, dtype):
+def level_extents(tree: TreeLayout, level: int) -> tuple:
+    """(key shift, x / y extent in tiles as floats, z extent in slices as an int) of a
+    level-``level`` node: what :func:`implicit_bounds` needs to know about the level."""
+    return (min(tree.shift(level), tree.key_bits), float(1 << tree.extent_bits(level, 0)),
+            float(1 << tree.extent_bits(level, 1)),
+            1 << tree.extent_bits(level, 2) if tree.kind == "cluster" else 0)
+
+
+def implicit_bounds(tree: TreeLayout, level: int, node, dtype, extents=None):
     """Implicit boxes (lo, hi), each [..., 3], of level-``level`` nodes ``node`` (uint32).
 
     x / y from the node's tile range, q from its depth-slice range (the top slice is
     open-ended: q down to 0). For PTSV the q range is [0, 1 / near] (explicit bounds
-    replace it). Padded outwards by :func:`pad_fraction`.
+    replace it). Padded outwards by :func:`pad_fraction`. ``extents`` replaces
+    :func:`level_extents` (traced scalars when the level is chosen at run time; the
+    results are the same bits).
     """
-    shift = min(tree.shift(level), tree.key_bits)
+    shift, ex, ey, ez = level_extents(tree, level) if extents is None else extents
     base = jnp.asarray(node).astype(jnp.uint32) << shift
     coords = decode(base, tree.layout, len(tree.bits), xp=jnp)
     tw, th = tree.tile
-    ex = float(1 << tree.extent_bits(level, 0))
-    ey = float(1 << tree.extent_bits(level, 1))
     x0 = coords[0].astype(dtype)
     y0 = coords[1].astype(dtype)
     nx_lo = 2 * tw * x0 / tree.width - 1
@@ -237,7 +245,6 @@ def implicit_bounds(tree: TreeLayout, level: int, node, dtype):
     ny_hi = 1 - 2 * th * y0 / tree.height
     ny_lo = jnp.maximum(1 - 2 * th * (y0 + ey) / tree.height, -1)
     if tree.kind == "cluster":
-        ez = 1 << tree.extent_bits(level, 2)
         z0 = coords[2].astype(dtype)
         q_hi = jnp.exp(-tree.log_ratio * z0) / tree.near
         top = coords[2].astype(jnp.int32) + ez >= tree.slices
@@ -267,12 +274,13 @@ class Hierarchy:
         tree: the static layout.
         masks: per mask level l = 0..D-1, uint32 [nodes(l)] child masks.
         exists: per level l = 1..D (index l - 1), bool [nodes(l)].
-        counts: per level l = 1..D, the number of existing nodes (host ints).
+        counts: per level l = 1..D, the number of existing nodes (int32 scalars, on the
+            device until read).
         storage: "full" or "compact".
         ptr: per level 1..D, int32 [nodes(l)] index into the compact list (-1 if the
             node does not exist); None for "full".
         lo, hi: per level 1..D, float [capacity_l, 3] explicit boxes (padded); for
-            "full" capacity_l = nodes(l), for "compact" a power-of-two bucket of counts.
+            "full" capacity_l = nodes(l), for "compact" min(nodes(l), samples).
         smin: per level 1..D, float [capacity_l], the minimum bias scale of the node's
             samples.
     """
@@ -301,80 +309,92 @@ def _pack_masks(exists_child, nodes_parent: int):
     return jnp.sum(bits * weights, axis=1, dtype=jnp.uint32)
 
 
-@functools.partial(jax.jit, static_argnames=("tree",))
-def _existence(tree: TreeLayout, keys, valid):
-    """Per level 1..D bool existence and per level 0..D-1 child masks."""
+def _compact_pointers(tree: TreeLayout, masks, level: int):
+    """int32 [nodes(level)]: index of each existing level-``level`` node in key order
+    (-1 if absent), from its parent's child-mask word: the parent's exclusive prefix
+    count of set bits plus the bits below the child's own (no prefix sum over the whole
+    level)."""
+    word = masks[level - 1]
+    cnt = jax.lax.population_count(word).astype(jnp.int32)
+    start = jnp.cumsum(cnt) - cnt
+    c = jnp.arange(32, dtype=jnp.uint32)
+    below = jax.lax.population_count(word[:, None] & ((jnp.uint32(1) << c) - jnp.uint32(1)))
+    bit = ((word[:, None] >> c) & jnp.uint32(1)) == 1
+    ptr = jnp.where(bit, start[:, None] + below.astype(jnp.int32), -1)
+    return ptr.reshape(-1)[: tree.nodes(level)]
+
+
+@functools.partial(jax.jit, static_argnames=("tree", "storage", "caps"))
+def _build(tree: TreeLayout, storage: str, caps: tuple, keys, valid, coords, scale):
+    """Masks, existence, counts, and explicit boxes and smin per level 1..D, in one call.
+
+    The leaf level is reduced from the samples (scatter-min / max by cluster), the inner
+    levels from their children's boxes; compact storage finds each entry's parent from
+    the entry's key (an entry's key is scattered from its samples), so no pass over the
+    full tree is needed beyond the masks.
+    """
     d = tree.levels
+    dtype = coords.dtype
+    big = jnp.asarray(np.finfo(dtype).max, dtype)
     leaf = jnp.zeros(tree.nodes(d), bool).at[jnp.where(valid, keys, tree.nodes(d))].set(
         True, mode="drop")
     exists = [leaf]
     for level in range(d - 1, 0, -1):
-        child = exists[0]
-        exists.insert(0, jnp.any(child.reshape(tree.nodes(level), -1), axis=1))
+        exists.insert(0, jnp.any(exists[0].reshape(tree.nodes(level), -1), axis=1))
     masks = [_pack_masks(exists[level], tree.nodes(level)) for level in range(d)]
-    return tuple(masks), tuple(exists)
-
-
-@functools.partial(jax.jit, static_argnames=("tree", "storage", "caps"))
-def _explicit(tree: TreeLayout, storage: str, caps: tuple, keys, valid, coords, scale, exists):
-    """Explicit boxes and smin per level 1..D (leaf level from samples, then upwards)."""
-    d = tree.levels
-    dtype = coords.dtype
-    big = jnp.asarray(np.finfo(dtype).max, dtype)
-    ptrs, los, his, smins = [], [], [], []
-    for level in range(1, d + 1):
-        if storage == "compact":
-            ptrs.append(jnp.where(exists[level - 1],
-                                  jnp.cumsum(exists[level - 1], dtype=jnp.int32) - 1, -1))
-        else:
-            ptrs.append(None)
-    # leaf level from the samples
-    cap = caps[d - 1]
-    idx = keys.astype(jnp.int32) if storage == "full" else ptrs[d - 1][keys.astype(jnp.int32)]
-    idx = jnp.where(valid, idx, cap)
-    lo = jnp.full((cap, 3), big).at[idx].min(coords, mode="drop")
-    hi = jnp.full((cap, 3), -big).at[idx].max(coords, mode="drop")
-    sm = jnp.full((cap,), big).at[idx].min(scale, mode="drop")
-    los.append(lo), his.append(hi), smins.append(sm)
-    # inner levels from their children
-    for level in range(d - 1, 0, -1):
-        cap = caps[level - 1]
-        if storage == "full":
+    counts = tuple(jnp.sum(e, dtype=jnp.int32) for e in exists)
+    los, his, smins = [None] * d, [None] * d, [None] * d
+    if storage == "full":
+        ptrs = None
+        idx = jnp.where(valid, keys.astype(jnp.int32), caps[d - 1])
+        cap = caps[d - 1]
+        los[d - 1] = jnp.full((cap, 3), big).at[idx].min(coords, mode="drop")
+        his[d - 1] = jnp.full((cap, 3), -big).at[idx].max(coords, mode="drop")
+        smins[d - 1] = jnp.full((cap,), big).at[idx].min(scale, mode="drop")
+        for level in range(d - 1, 0, -1):
             n = tree.nodes(level)
-            clo = los[0].reshape(n, -1, 3)
-            lo = jnp.min(clo, axis=1)
-            hi = jnp.max(his[0].reshape(n, -1, 3), axis=1)
-            sm = jnp.min(smins[0].reshape(n, -1), axis=1)
-        else:
-            # child compact entries are in key order; parent of entry e: key(e) >> 5
-            child_keys = jnp.nonzero(exists[level], size=caps[level], fill_value=0)[0]
-            ok = jnp.arange(caps[level]) < jnp.sum(exists[level])
-            parent = ptrs[level - 1][child_keys >> FANOUT_BITS]
-            parent = jnp.where(ok, parent, cap)
-            lo = jnp.full((cap, 3), big).at[parent].min(los[0], mode="drop")
-            hi = jnp.full((cap, 3), -big).at[parent].max(his[0], mode="drop")
-            sm = jnp.full((cap,), big).at[parent].min(smins[0], mode="drop")
-        los.insert(0, lo), his.insert(0, hi), smins.insert(0, sm)
+            los[level - 1] = jnp.min(los[level].reshape(n, -1, 3), axis=1)
+            his[level - 1] = jnp.max(his[level].reshape(n, -1, 3), axis=1)
+            smins[level - 1] = jnp.min(smins[level].reshape(n, -1), axis=1)
+    else:
+        ptrs = [_compact_pointers(tree, masks, level) for level in range(1, d + 1)]
+        cap = caps[d - 1]
+        idx = jnp.where(valid, ptrs[d - 1][keys.astype(jnp.int32)], cap)
+        los[d - 1] = jnp.full((cap, 3), big).at[idx].min(coords, mode="drop")
+        his[d - 1] = jnp.full((cap, 3), -big).at[idx].max(coords, mode="drop")
+        smins[d - 1] = jnp.full((cap,), big).at[idx].min(scale, mode="drop")
+        ekey = jnp.zeros(cap, jnp.uint32).at[idx].set(keys, mode="drop")
+        for level in range(d - 1, 0, -1):
+            cap = caps[level - 1]
+            ok = jnp.arange(caps[level]) < counts[level]
+            pkey = ekey >> FANOUT_BITS
+            parent = jnp.where(ok, ptrs[level - 1][pkey.astype(jnp.int32)], cap)
+            los[level - 1] = jnp.full((cap, 3), big).at[parent].min(los[level], mode="drop")
+            his[level - 1] = jnp.full((cap, 3), -big).at[parent].max(his[level], mode="drop")
+            smins[level - 1] = jnp.full((cap,), big).at[parent].min(smins[level], mode="drop")
+            ekey = jnp.zeros(cap, jnp.uint32).at[parent].set(pkey, mode="drop")
     padded = [pad_box(lo, hi, dtype) for lo, hi in zip(los, his)]
-    return (tuple(ptrs) if storage == "compact" else None, tuple(p[0] for p in padded),
-            tuple(p[1] for p in padded), tuple(smins))
+    return (tuple(masks), tuple(exists), counts, None if ptrs is None else tuple(ptrs),
+            tuple(p[0] for p in padded), tuple(p[1] for p in padded), tuple(smins))
 
 
 def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact") -> Hierarchy:
-    """Build masks, existence and explicit bounds over samples.
+    """Build masks, existence and explicit bounds over samples (one jitted call, no host
+    round trip; ``counts`` stay on the device until read).
 
     Args:
         keys: uint32 [S] sample keys; valid: bool [S] (False for padding rows).
         coords: [S, 3] post-perspective coordinates; scale: [S] bias scale.
-        storage: "full" or "compact" (how explicit boxes are stored).
+        storage: "full" or "compact" (how explicit boxes are stored). Compact lists are
+            sized min(nodes, samples) per level (a static bound: no count is read back).
     """
-    masks, exists = _existence(tree, keys, valid)
-    counts = tuple(int(c) for c in jax.device_get([jnp.sum(e) for e in exists]))
     if storage == "full":
         caps = tuple(tree.nodes(level) for level in range(1, tree.levels + 1))
     else:
-        caps = tuple(max(32, 1 << max(0, (c - 1).bit_length())) for c in counts)
-    ptr, lo, hi, smin = _explicit(tree, storage, caps, keys, valid, coords, scale, exists)
+        caps = tuple(min(tree.nodes(level), keys.shape[0])
+                     for level in range(1, tree.levels + 1))
+    masks, exists, counts, ptr, lo, hi, smin = _build(tree, storage, caps, keys, valid,
+                                                      coords, scale)
     return Hierarchy(tree, masks, exists, counts, storage, ptr, lo, hi, smin)
 
 

@@ -37,14 +37,16 @@ deterministic.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..geometry.morton import decode
 from ..scene.view import hard_light
-from ..timing import StageTimer
+from ..timing import StageTimer, compiled
 from . import cluster_hierarchy as ch
 from .brute_force import setup as world_setup
 from .common import BIAS_MODES, bias_terms, bucket, cap_bias, precision_mode, view_samples
@@ -150,262 +152,428 @@ def _explicit_axes(tree: ch.TreeLayout, bounds: str) -> tuple[bool, bool, bool]:
     return (True, True, True) if bounds == "explicit" else (False, False, False)
 
 
-@functools.partial(jax.jit, static_argnames=("tree", "level", "axes", "storage", "extra"))
-def _expand(tree, level, axes, storage, extra, n, tri, node, job, mask, ptr, lo, hi, smin,
-            g, tol, bound, accepted, iters):
-    """Test the 32 children of every frontier job at ``level``.
-
-    Args:
-        n: valid frontier entries; tri, node, job: [N] int32 / uint32 / int32.
-        mask: uint32 [nodes(level)] child masks (pruned if pruning).
-        ptr, lo, hi, smin: level + 1 storage (ptr None for "full").
-        g, tol: [T, 7, 4], [T, 7]; bound: [T] bias bound.
-        accepted: bool [nodes(level + 1)], nodes trivially accepted so far.
-        iters: int32 [J] iterations per job.
-
-    Returns:
-        intersect bool [N, 32], counts int32 [4] (node tests, accepts, rejects, rejects
-        by the extra planes only), accepted, iters.
-    """
-    dtype = g.dtype
-    u = jnp.finfo(dtype).eps
-    big_n = tri.shape[0]
-    valid = jnp.arange(big_n) < n
-    word = mask[node.astype(jnp.int32)]
-    c = jnp.arange(32, dtype=jnp.uint32)
-    child = (node[:, None] << 5) | c[None, :]
-    exists = (((word[:, None] >> c[None, :]) & jnp.uint32(1)) == 1) & valid[:, None]
-    child_i = child.astype(jnp.int32)
-    idx = child_i if storage == "full" else jnp.maximum(ptr[child_i], 0)
-    elo, ehi, sm = lo[idx], hi[idx], smin[idx]
-    if not all(axes):
-        ilo, ihi = ch.implicit_bounds(tree, level + 1, child, dtype)
-        blo = jnp.stack([elo[..., a] if axes[a] else ilo[..., a] for a in range(3)], -1)
-        bhi = jnp.stack([ehi[..., a] if axes[a] else ihi[..., a] for a in range(3)], -1)
-    else:
-        blo, bhi = elo, ehi
-    gt = g[tri][:, None]                                   # [N, 1, 7, 4]
-    tt = tol[tri][:, None]                                 # [N, 1, 7]
-    lo3, hi3 = blo[..., None, :], bhi[..., None, :]        # [N, 32, 1, 3]
-    a_lo, a_hi = gt[..., :3] * lo3, gt[..., :3] * hi3
-    vmax = jnp.sum(jnp.maximum(a_lo, a_hi), -1) + gt[..., 3]   # [N, 32, 7]
-    vmin = jnp.sum(jnp.minimum(a_lo, a_hi), -1) + gt[..., 3]
-    rej_edge = jnp.any(vmax[..., :3] < -tt[..., :3], -1)
-    acc_edge = jnp.all(vmin[..., :3] >= tt[..., :3], -1)
-    cmax = vmax[..., 3] + tt[..., 3]
-    cmin = vmin[..., 3] - tt[..., 3]
-    pos_scale = sm > 0
-    rej_cap = pos_scale & (cmin > 0)
-    lim = bound[tri][:, None]
-    acc_cap = pos_scale & (cmax < 0) & (
-        (cmax / bhi[..., 2]) * sm * (1 - _MARGIN_ULPS * u) < lim * (1 + _MARGIN_ULPS * u))
-    basic_reject = rej_edge | rej_cap
-    accept = exists & ~basic_reject & acc_edge & acc_cap
-    if extra:
-        extra_reject = exists & ~basic_reject & ~accept & jnp.any(vmax[..., 4:] < -tt[..., 4:], -1)
-    else:
-        extra_reject = jnp.zeros_like(accept)
-    intersect = exists & ~basic_reject & ~accept & ~extra_reject
-    counts = jnp.stack([jnp.sum(exists), jnp.sum(accept),
-                        jnp.sum(exists & (basic_reject | extra_reject)),
-                        jnp.sum(extra_reject)]).astype(jnp.int32)
-    oob = accepted.shape[0]
-    accepted = accepted.at[jnp.where(accept, child_i, oob)].set(True, mode="drop")
-    iters = iters.at[jnp.where(valid, job, iters.shape[0])].add(1, mode="drop")
-    return intersect, counts, accepted, iters
+def shape_tree(tree: ch.TreeLayout) -> ch.TreeLayout:
+    """``tree`` without its camera-dependent floats: the static key of compiled kernels
+    (frames and scenes at one resolution share them; the floats are passed as data)."""
+    return dataclasses.replace(tree, near=0.0, far=0.0, log_ratio=0.0, p00=0.0, p11=0.0,
+                               saturates=False)
 
 
-@functools.partial(jax.jit, static_argnames=("size",))
-def _compact(size, intersect, tri, node, job):
-    """The next frontier: the intersected (job, child) pairs in order, [size] each."""
-    flat = intersect.reshape(-1)
-    idx = jnp.nonzero(flat, size=size, fill_value=0)[0]
-    parent = idx // 32
-    c = (idx % 32).astype(jnp.uint32)
-    return tri[parent], (node[parent] << 5) | c, job[parent]
+def tree_params(tree: ch.TreeLayout, dtype) -> np.ndarray:
+    """The camera-dependent floats of ``tree`` in the working dtype (what a Python float
+    static becomes when it meets a ``dtype`` array, so results are bit-identical)."""
+    return np.array([tree.near, tree.log_ratio, tree.p00, tree.p11], dtype)
 
 
-@jax.jit
-def _pack(accepted, mask):
-    """``mask`` with the bits of accepted children cleared (pruning)."""
-    n = mask.shape[0]
-    flat = jnp.zeros(n * 32, bool).at[: accepted.shape[0]].set(accepted)
-    bits = flat.reshape(n, 32).astype(jnp.uint32)
-    weights = jnp.left_shift(jnp.uint32(1), jnp.arange(32, dtype=jnp.uint32))
-    return mask & ~jnp.sum(bits * weights, axis=1, dtype=jnp.uint32)
+def _with_params(shape: ch.TreeLayout, params) -> ch.TreeLayout:
+    return dataclasses.replace(shape, near=params[0], log_ratio=params[1], p00=params[2],
+                               p11=params[3])
 
 
 def _tile_of(tree: ch.TreeLayout, leaf):
-    from ..geometry.morton import decode
     coords = decode(leaf, tree.layout, len(tree.bits), xp=jnp)
     return coords[1].astype(jnp.int32) * tree.tiles_x + coords[0].astype(jnp.int32)
 
 
-@functools.partial(jax.jit, static_argnames=("tree", "chunk", "cluster_only"))
-def _leaf_tests(tree, chunk, cluster_only, n, tri, leaf, job, table, skeys, pos, scale,
-                planes, bound, shadow, tests, iters):
-    """Test every sample of each leaf job's tile (test-and-set), in chunks.
+def _test_children(cfg, level, a, tri, node, valid, accepted):
+    """Classify the 32 children of every frontier job at ``level`` (a traced int: one
+    body serves every level; per-level arrays are concatenated, ``a["off"]`` holds the
+    offsets). Algorithm 1, lines 10-19, for all jobs at once. Returns bool [N, 32]
+    (exists, accept, reject, extra_reject, intersect)."""
+    axes, storage, extra, prune = cfg["axes"], cfg["storage"], cfg["extra"], cfg["prune"]
+    g, tol, bound, off = a["g"], a["tol"], a["bound"], a["off"]
+    dtype = g.dtype
+    u = jnp.finfo(dtype).eps
+    node_i = node.astype(jnp.int32)
+    word = a["masks"][off["masks"][level] + node_i]
+    c = jnp.arange(32, dtype=jnp.uint32)
+    child = (node[:, None] << 5) | c[None, :]
+    exists = (((word[:, None] >> c[None, :]) & jnp.uint32(1)) == 1) & valid[:, None]
+    if prune:                                  # accepted children are cleared from the mask
+        exists &= ~accepted[off["masks"][level] + node_i]
+    child_i = child.astype(jnp.int32)
+    if storage == "full":
+        idx = off["boxes"][level] + child_i
+    else:
+        idx = off["boxes"][level] + jnp.maximum(a["ptr"][off["ptr"][level] + child_i], 0)
+    elo, ehi, sm = a["lo"][idx], a["hi"][idx], a["smin"][idx]
+    if not all(axes):
+        ext = (off["shift"][level], off["ex"][level].astype(dtype),
+               off["ey"][level].astype(dtype), off["ez"][level])
+        ilo, ihi = ch.implicit_bounds(cfg["ttree"], None, child, dtype, extents=ext)
+        blo = jnp.stack([elo[..., k] if axes[k] else ilo[..., k] for k in range(3)], -1)
+        bhi = jnp.stack([ehi[..., k] if axes[k] else ihi[..., k] for k in range(3)], -1)
+    else:
+        blo, bhi = elo, ehi
+    # plane r at the box: the extreme corners per axis; written per row on [N, 32]
+    # arrays (minor axes of size 3 or 7 vectorize poorly). Summed as (x + q) + y, then the
+    # constant: the order XLA's size-3 reduction used in the first version, kept so the
+    # float32 counters are unchanged (the float64 loop in the tests sums x, y, q)
+    gt = g[tri]                                            # [N, 7, 4]
+    tt = tol[tri]                                          # [N, 7]
+    lx, ly, lq = blo[..., 0], blo[..., 1], blo[..., 2]     # [N, 32]
+    hx, hy, hq = bhi[..., 0], bhi[..., 1], bhi[..., 2]
 
-    Args:
-        tri, leaf, job: [M] leaf jobs (M % chunk == 0), n valid.
-        table: int32 [tiles, P] sample ids per tile (S = no sample).
-        skeys: uint32 [S] sample keys; pos [S, 3]; scale [S]; planes [T, 16]; bound [T].
-        shadow: bool [S]; tests: int32 [S]; iters: int32 [J].
-    """
-    s = pos.shape[0]
+    def extremes(r):
+        g0, g1, g2, g3 = (gt[:, r, k][:, None] for k in range(4))
+        ax, bx = g0 * lx, g0 * hx
+        ay, by = g1 * ly, g1 * hy
+        aq, bq = g2 * lq, g2 * hq
+        vmax = (jnp.maximum(ax, bx) + jnp.maximum(aq, bq)) + jnp.maximum(ay, by) + g3
+        vmin = (jnp.minimum(ax, bx) + jnp.minimum(aq, bq)) + jnp.minimum(ay, by) + g3
+        return vmax, vmin
+
+    rej_edge = jnp.zeros(lx.shape, bool)
+    acc_edge = jnp.ones(lx.shape, bool)
+    for r in range(3):
+        vmax, vmin = extremes(r)
+        t = tt[:, r][:, None]
+        rej_edge |= vmax < -t
+        acc_edge &= vmin >= t
+    vmax, vmin = extremes(3)
+    cmax = vmax + tt[:, 3][:, None]
+    cmin = vmin - tt[:, 3][:, None]
+    pos_scale = sm > 0
+    rej_cap = pos_scale & (cmin > 0)
+    lim = bound[tri][:, None]
+    acc_cap = pos_scale & (cmax < 0) & (
+        (cmax / hq) * sm * (1 - _MARGIN_ULPS * u) < lim * (1 + _MARGIN_ULPS * u))
+    basic_reject = rej_edge | rej_cap
+    accept = exists & ~basic_reject & acc_edge & acc_cap
+    if extra:
+        rej_x = jnp.zeros(lx.shape, bool)
+        for r in range(4, 7):
+            rej_x |= extremes(r)[0] < -tt[:, r][:, None]
+        extra_reject = exists & ~basic_reject & ~accept & rej_x
+    else:
+        extra_reject = jnp.zeros_like(accept)
+    intersect = exists & ~basic_reject & ~accept & ~extra_reject
+    return exists, accept, basic_reject, extra_reject, intersect
+
+
+def _leaf_chunk(cfg, a, tri, leaf, ok, tile_shadow, tile_tests):
+    """Test-and-set of leaf jobs (tri, leaf) [C]: every sample of the leaf's tile (or of
+    its cluster), with the exact world-space test of ``brute_force``; the tile's samples
+    are gathered once per job (tile-major arrays) and OR-reduced per sample by a row
+    scatter-max into [tiles, P]."""
+    tile = _tile_of(cfg["tree"], leaf)
+    x, y, z = a["tile_x"][tile], a["tile_y"][tile], a["tile_z"][tile]   # [C, P]
+    m = a["tile_valid"][tile] & ok[:, None]
+    if cfg["cluster_only"]:
+        m &= a["tile_key"][tile] == leaf[:, None]
+    pl = a["planes"][tri]
+    e0 = x * pl[:, 0:1] + y * pl[:, 1:2] + z * pl[:, 2:3] + pl[:, 3:4]
+    e1 = x * pl[:, 4:5] + y * pl[:, 5:6] + z * pl[:, 6:7] + pl[:, 7:8]
+    e2 = x * pl[:, 8:9] + y * pl[:, 9:10] + z * pl[:, 10:11] + pl[:, 11:12]
+    cap = x * pl[:, 12:13] + y * pl[:, 13:14] + z * pl[:, 14:15] + pl[:, 15:16]
+    inside = (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (
+        cap * a["tile_scale"][tile] < a["bound"][tri][:, None])
+    tile_shadow = tile_shadow.at[tile].max(inside & m)
+    tile_tests = tile_tests.at[tile].add(m.astype(jnp.int32))
+    return tile_shadow, tile_tests
+
+
+LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop
+EXPAND_CHUNK = 2048      # frontier jobs per step of the expand loop
+SELECT_CHUNK = 4096      # output slots per step of the compaction loop
+MIN_FRONTIER = 4096      # smallest frontier bucket
+# smallest triangle / sample buckets: small scenes and images share compiled kernels
+MIN_TRIANGLES = 2048
+MIN_SAMPLES = 4096
+
+
+def _expand_level(cfg, level, a, st, acc_seen, tri, node, job, n):
+    """Expand a frontier (tri, node, job) [cap], n valid, at ``level`` (traced): test the
+    32 children of each job in chunks (a loop whose trip count follows n, so a generous
+    bucket costs memory, not time), count, record accepts (a row scatter-max) and
+    iterations, then compact the intersected children (job-major, child-minor) into
+    [cap] with a gather-only stream compaction: prefix sums of the per-job popcounts, a
+    binary search per output slot, a 5-step select of the r-th set bit. Returns the
+    state and the next frontier with its true size (> cap: overflow, retried by the
+    host)."""
+    cap = tri.shape[0]
+    e = min(cap, EXPAND_CHUNK)
+    iters_cap = st["iters"].shape[0]
+    row0 = a["off"]["masks"][level]
 
     def body(i, carry):
-        shadow, tests = carry
-        t = jax.lax.dynamic_slice_in_dim(tri, i * chunk, chunk)
-        k = jax.lax.dynamic_slice_in_dim(leaf, i * chunk, chunk)
-        ok = (i * chunk + jnp.arange(chunk)) < n
-        sids = table[_tile_of(tree, k)]                       # [C, P]
-        sc = jnp.minimum(sids, s - 1)
-        p = pos[sc]
-        pl = planes[t]
-        px, py, pz = p[..., 0], p[..., 1], p[..., 2]
-        e0 = px * pl[:, 0:1] + py * pl[:, 1:2] + pz * pl[:, 2:3] + pl[:, 3:4]
-        e1 = px * pl[:, 4:5] + py * pl[:, 5:6] + pz * pl[:, 6:7] + pl[:, 7:8]
-        e2 = px * pl[:, 8:9] + py * pl[:, 9:10] + pz * pl[:, 10:11] + pl[:, 11:12]
-        cap = px * pl[:, 12:13] + py * pl[:, 13:14] + pz * pl[:, 14:15] + pl[:, 15:16]
-        inside = (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap * scale[sc] < bound[t][:, None])
-        m = ok[:, None] & (sids < s)
-        if cluster_only:
-            m &= skeys[sc] == k[:, None]
-        tgt = jnp.where(m, sids, s)
-        shadow = shadow.at[tgt].max(inside & m, mode="drop")
-        tests = tests.at[tgt].add(1, mode="drop")
-        return shadow, tests
+        words, end, total, counts, acc, iters = carry
+        s = i * e
+        t = jax.lax.dynamic_slice_in_dim(tri, s, e)
+        nd = jax.lax.dynamic_slice_in_dim(node, s, e)
+        jb = jax.lax.dynamic_slice_in_dim(job, s, e)
+        valid = s + jnp.arange(e) < n
+        exists, accept, basic, extra_rej, inter = _test_children(cfg, level, a, t, nd, valid,
+                                                                 acc_seen)
+        counts = counts + jnp.stack([
+            jnp.sum(exists), jnp.sum(accept), jnp.sum(exists & (basic | extra_rej)),
+            jnp.sum(extra_rej)]).astype(jnp.int32)
+        rows = jnp.where(jnp.any(accept, axis=1), row0 + nd.astype(jnp.int32), acc.shape[0])
+        acc = acc.at[rows].max(accept, mode="drop")
+        iters = iters.at[jnp.where(valid, jb, iters_cap)].add(1, mode="drop")
+        w = jnp.sum(inter.astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32), axis=1,
+                    dtype=jnp.uint32)
+        chunk_end = total + jnp.cumsum(jax.lax.population_count(w).astype(jnp.int32))
+        words = jax.lax.dynamic_update_slice_in_dim(words, w, s, 0)
+        end = jax.lax.dynamic_update_slice_in_dim(end, chunk_end, s, 0)
+        return words, end, chunk_end[-1], counts, acc, iters
 
-    shadow, tests = jax.lax.fori_loop(0, tri.shape[0] // chunk, body, (shadow, tests))
-    valid = jnp.arange(tri.shape[0]) < n
-    iters = iters.at[jnp.where(valid, job, iters.shape[0])].add(1, mode="drop")
-    return shadow, tests, iters
+    big = jnp.iinfo(jnp.int32).max
+    words, end, total, counts, acc, iters = jax.lax.fori_loop(
+        0, (n + e - 1) // e, body,
+        (jnp.zeros(cap, jnp.uint32), jnp.full(cap, big, jnp.int32), jnp.int32(0),
+         st["counts"], st["accepted"], st["iters"]))
+    st = dict(st, counts=counts, iters=iters, accepted=acc)
+    sc = min(cap, SELECT_CHUNK)
 
+    def select(i, carry):
+        ntri, nnode, njob = carry
+        q = i * sc + jnp.arange(sc, dtype=jnp.int32)
+        j = jnp.minimum(jnp.searchsorted(end, q, side="right"), cap - 1).astype(jnp.int32)
+        r = q - jnp.where(j > 0, end[jnp.maximum(j - 1, 0)], 0)
+        w = words[j]
+        pos = jnp.zeros(sc, jnp.uint32)
+        for width in (16, 8, 4, 2, 1):
+            c = jax.lax.population_count((w >> pos) & jnp.uint32((1 << width) - 1))
+            go = r >= c.astype(jnp.int32)
+            r = jnp.where(go, r - c.astype(jnp.int32), r)
+            pos = jnp.where(go, pos + jnp.uint32(width), pos)
+        ntri = jax.lax.dynamic_update_slice_in_dim(ntri, tri[j], i * sc, 0)
+        nnode = jax.lax.dynamic_update_slice_in_dim(nnode, (node[j] << 5) | pos, i * sc, 0)
+        njob = jax.lax.dynamic_update_slice_in_dim(njob, job[j], i * sc, 0)
+        return ntri, nnode, njob
 
-@functools.partial(jax.jit, static_argnames=("tree",))
-def _merge(tree, skeys, valid, accepted):
-    """bool [S]: samples inside a node accepted at any level 1..D."""
-    shadow = jnp.zeros(skeys.shape, bool)
-    for level in range(1, tree.levels + 1):
-        shadow |= accepted[level - 1][(skeys >> tree.shift(level)).astype(jnp.int32)]
-    return shadow & valid
-
-
-class _Traversal:
-    """Host driver of the level-synchronous traversal (see the module docstring)."""
-
-    def __init__(self, hier, axes, extra, g, tol, bound, planes, pos, scale, skeys, table,
-                 prune, cluster_only):
-        self.h, self.tree = hier, hier.tree
-        self.axes, self.extra = axes, extra
-        self.g, self.tol, self.bound, self.planes = g, tol, bound, planes
-        self.pos, self.scale, self.skeys, self.table = pos, scale, skeys, table
-        self.prune, self.cluster_only = prune, cluster_only
-        d = self.tree.levels
-        self.masks = list(hier.masks)
-        self.accepted = [jnp.zeros(self.tree.nodes(level), bool) for level in range(1, d + 1)]
-        self.shadow = jnp.zeros(pos.shape[0], bool)
-        self.tests = jnp.zeros(pos.shape[0], jnp.int32)
-        self.counts = np.zeros(4, np.int64)
-        self.leaf_visits = 0
-        self.frontier_max = 0
-
-    def _storage(self, level):
-        h = self.h
-        ptr = h.ptr[level] if h.ptr is not None else None
-        return ptr, h.lo[level], h.hi[level], h.smin[level]
-
-    def run(self, tri, node, job, n, level, stop):
-        """Traverse frontier (tri, node, job) [n valid] from ``level``, adding node visits
-        to ``self.iters`` (per job); returns the frontier reached at level ``stop``
-        (tri, node, n), or None when stop > D (the leaves were tested)."""
-        d = self.tree.levels
-        while True:
-            self.frontier_max = max(self.frontier_max, n)
-            if level == stop:
-                return tri, node, n
-            if n == 0:
-                return None
-            if level == d:
-                chunk = min(tri.shape[0], 1024)
-                self.leaf_visits += n
-                self.shadow, self.tests, self.iters = _leaf_tests(
-                    self.tree, chunk, self.cluster_only, n, tri, node, job, self.table,
-                    self.skeys, self.pos, self.scale, self.planes, self.bound, self.shadow,
-                    self.tests, self.iters)
-                return None
-            ptr, lo, hi, smin = self._storage(level)
-            inter, counts, acc, self.iters = _expand(
-                self.tree, level, self.axes, self.h.storage, self.extra, n, tri, node, job,
-                self.masks[level], ptr, lo, hi, smin, self.g, self.tol, self.bound,
-                self.accepted[level], self.iters)
-            self.accepted[level] = acc
-            self.counts += np.asarray(counts)
-            if self.prune:
-                self.masks[level] = _pack(acc, self.h.masks[level])
-            m = int(jnp.sum(inter))
-            size = bucket(m, minimum=2048)
-            tri, node, job = _compact(size, inter, tri, node, job)
-            n = m
-            level += 1
+    m = jnp.minimum(total, cap)
+    ntri, nnode, njob = jax.lax.fori_loop(
+        0, (m + sc - 1) // sc, select,
+        (jnp.zeros(cap, jnp.int32), jnp.zeros(cap, jnp.uint32), jnp.zeros(cap, jnp.int32)))
+    return st, ntri, nnode, njob, total
 
 
-def _waves(total: int, wave: int | None):
-    if not wave or total <= wave:
-        return [(0, total)]
-    return [(lo, min(lo + wave, total)) for lo in range(0, total, wave)]
+@functools.lru_cache(maxsize=64)
+def _pass_kernel(shape, axes, storage, extra, prune, cluster_only, level0, stop, cap,
+                 out_cap):
+    """A jitted traversal pass: waves of jobs from ``level0`` down to ``stop`` (push
+    (triangle, node) jobs at level ``stop``; stop > D: test the leaves). One call runs
+    every wave and level: no host round trip per level or per wave. One loop body
+    serves every inner level (the level is data), which keeps compile times short.
 
-
-def _frontier(values: np.ndarray, keys: np.ndarray | None, lo: int, hi: int):
-    n = hi - lo
-    size = bucket(n, minimum=2048)
-    tri = np.zeros(size, np.int32)
-    tri[:n] = values[lo:hi]
-    key = np.zeros(size, np.uint32)
-    if keys is not None:
-        key[:n] = keys[lo:hi]
-    job = np.zeros(size, np.int32)
-    job[:n] = np.arange(lo, hi)
-    return jnp.asarray(tri), jnp.asarray(key), jnp.asarray(job), n
-
-
-def traverse(trav: _Traversal, casters: np.ndarray, *, passes: int, expand_level: int,
-             wave: int | None):
-    """Run pass 1 (and pass 2 for ``passes=2``).
-
-    Returns:
-        iterations per pass-1 job (one per caster, in ``casters`` order) int [C], and
-        per pass-2 job int [J] (empty for one pass), plus the pass-2 jobs'
-        (triangle, node key) arrays [J].
+    ``cap`` (a power of two) is the capacity of every frontier. A level whose frontier
+    would exceed it records a ``need`` above it (the extra entries are dropped and the
+    state is not used); the host then retries with a bigger bucket, so nothing is
+    truncated silently.
     """
-    d = trav.tree.levels
+    d = shape.levels
+    last = min(stop, d)
+
+    def run(params, jobs_tri, jobs_node, n_jobs, wave_size, a, accepted, tile_shadow,
+            tile_tests):
+        cfg = dict(tree=shape, ttree=_with_params(shape, params), axes=axes, storage=storage,
+                   extra=extra, prune=prune, cluster_only=cluster_only)
+        iters_cap = jobs_tri.shape[0]
+        st = dict(accepted=accepted, tile_shadow=tile_shadow, tile_tests=tile_tests,
+                  iters=jnp.zeros(iters_cap, jnp.int32), counts=jnp.zeros(4, jnp.int32),
+                  need=jnp.zeros(last - level0 + 1, jnp.int32), fmax=jnp.int32(0),
+                  leaf_visits=jnp.int32(0), out_n=jnp.int32(0),
+                  out_tri=jnp.zeros(out_cap + cap, jnp.int32),
+                  out_node=jnp.zeros(out_cap + cap, jnp.uint32))
+
+        def wave(w, st):
+            start = w * wave_size
+            tri = jax.lax.dynamic_slice_in_dim(jobs_tri, start, cap)
+            node = jax.lax.dynamic_slice_in_dim(jobs_node, start, cap)
+            job = start + jnp.arange(cap, dtype=jnp.int32)
+            n = jnp.minimum(n_jobs - start, wave_size).astype(jnp.int32)
+            # pruning sees the accepts of earlier waves only (a level's accepts come from
+            # its own expansion, so the wave's start state is the level's start state)
+            acc_seen = st["accepted"] if prune else None
+
+            def level_body(level, carry):
+                st, tri, node, job, n = carry
+                li = level - level0
+                st = dict(st, fmax=jnp.maximum(st["fmax"], n), need=st["need"].at[li].max(n))
+                st, tri, node, job, n = _expand_level(cfg, level, a, st, acc_seen, tri, node,
+                                                      job, jnp.minimum(n, cap))
+                return st, tri, node, job, n
+
+            st, tri, node, job, n = jax.lax.fori_loop(level0, last, level_body,
+                                                      (st, tri, node, job, n))
+            st = dict(st, fmax=jnp.maximum(st["fmax"], n),
+                      need=st["need"].at[last - level0].max(n))
+            n = jnp.minimum(n, cap)
+            if stop <= d:                                    # pass 1 of two: push jobs
+                o = jnp.minimum(st["out_n"], out_cap)
+                return dict(st, out_n=st["out_n"] + n,
+                            out_tri=jax.lax.dynamic_update_slice_in_dim(st["out_tri"], tri, o, 0),
+                            out_node=jax.lax.dynamic_update_slice_in_dim(st["out_node"], node,
+                                                                         o, 0))
+            chunk = min(cap, LEAF_CHUNK)                     # leaf test-and-sets
+            iters = st["iters"].at[jnp.where(jnp.arange(cap) < n, job, iters_cap)].add(
+                1, mode="drop")
+
+            def leaf_body(i, carry):
+                t = jax.lax.dynamic_slice_in_dim(tri, i * chunk, chunk)
+                k = jax.lax.dynamic_slice_in_dim(node, i * chunk, chunk)
+                ok = i * chunk + jnp.arange(chunk) < n
+                return _leaf_chunk(cfg, a, t, k, ok, *carry)
+
+            ts, tt = jax.lax.fori_loop(0, (n + chunk - 1) // chunk, leaf_body,
+                                       (st["tile_shadow"], st["tile_tests"]))
+            return dict(st, iters=iters, leaf_visits=st["leaf_visits"] + n, tile_shadow=ts,
+                        tile_tests=tt)
+
+        n_waves = (n_jobs + wave_size - 1) // wave_size
+        return jax.lax.fori_loop(0, n_waves, wave, st)
+
+    return jax.jit(run)
+
+
+_CAPS: dict = {}
+
+
+def level_offsets(tree: ch.TreeLayout) -> tuple[list[int], int]:
+    """First row of each mask level 0..D-1 in the concatenated masks (and in the
+    accepted-children array, a row of 32 per inner node), and the total rows."""
+    rows, total = [], 0
+    for level in range(tree.levels):
+        rows.append(total)
+        total += tree.nodes(level)
+    return rows, total
+
+
+def flat_hierarchy(hier: ch.Hierarchy, tree: ch.TreeLayout, dtype) -> dict:
+    """The hierarchy as concatenated arrays plus per-level offset tables, so one loop
+    body can serve every level (``off``: masks / accepted rows, pointers and boxes of the
+    child level, and the child level's implicit extents)."""
+    d = tree.levels
+    rows, _ = level_offsets(tree)
+    box_off, ptr_off, b, p = [], [], 0, 0
+    for level in range(d):
+        box_off.append(b)
+        b += hier.lo[level].shape[0]
+        ptr_off.append(p)
+        p += tree.nodes(level + 1) if hier.ptr is not None else 0
+    ext = [ch.level_extents(tree, level + 1) for level in range(d)]
+    off = dict(masks=jnp.asarray(rows, jnp.int32), boxes=jnp.asarray(box_off, jnp.int32),
+               ptr=jnp.asarray(ptr_off, jnp.int32),
+               shift=jnp.asarray([e[0] for e in ext], jnp.uint32),
+               ex=jnp.asarray([e[1] for e in ext], dtype), ey=jnp.asarray([e[2] for e in ext], dtype),
+               ez=jnp.asarray([e[3] for e in ext], jnp.int32))
+    return dict(masks=jnp.concatenate(hier.masks),
+                ptr=None if hier.ptr is None else jnp.concatenate(hier.ptr),
+                lo=jnp.concatenate(hier.lo), hi=jnp.concatenate(hier.hi),
+                smin=jnp.concatenate(hier.smin), off=off)
+
+
+def run_pass(timer, shape, params, opts, a, accepted, tile_shadow, tile_tests, jobs_tri,
+             jobs_node, n_jobs: int, level0: int, stop: int, wave: int | None, out_cap: int):
+    """One traversal pass (see :func:`_pass_kernel`), retried with a bigger frontier
+    bucket until nothing overflows. The bucket is remembered per tree shape and options
+    (it only grows), so later frames reuse the compiled kernel. ``jobs_*`` are host
+    arrays [n_jobs]. Returns the kernel's final state (device arrays) and out_cap."""
+    total = max(n_jobs, 1)
+    wave_size = min(wave, total) if wave else total
+    key = (shape, opts, level0, stop)
+    cap = max(_CAPS.get(key, 0), bucket(wave_size, minimum=MIN_FRONTIER))
+    while True:
+        n_waves = -(-total // wave_size)
+        length = bucket((n_waves - 1) * wave_size + cap, minimum=MIN_FRONTIER)
+        jt = np.zeros(length, np.int32)
+        jn = np.zeros(length, np.uint32)
+        jt[:n_jobs], jn[:n_jobs] = jobs_tri, jobs_node
+        kern = _pass_kernel(shape, *opts, level0, stop, cap, out_cap)
+        args = (params, jnp.asarray(jt), jnp.asarray(jn), jnp.int32(n_jobs),
+                jnp.int32(wave_size), a, accepted, tile_shadow, tile_tests)
+        exe, dt = compiled(kern, *args)
+        timer.times["traverse_compile"] = timer.times.get("traverse_compile", 0.0) + dt
+        st = exe(*args)
+        need = np.asarray(st["need"])
+        out_n = int(st["out_n"])
+        if need.max() <= cap and out_n <= out_cap:
+            break
+        # counts below a truncated level are underestimates: grow by 4x at least
+        if need.max() > cap:
+            cap = max(bucket(int(need.max()), minimum=MIN_FRONTIER), 4 * cap)
+        if out_n > out_cap:
+            out_cap = bucket(out_n, minimum=MIN_FRONTIER)
+    _CAPS[key] = cap
+    return st, out_cap
+
+
+def traverse(timer, shape, params, opts, a, casters: np.ndarray, accepted, tile_shadow,
+             tile_tests, *, passes: int, expand_level: int, wave: int | None):
+    """Pass 1 over the casters (and pass 2 over the (triangle, node) jobs it pushed).
+
+    Returns the final state (accepted, tile_shadow, tile_tests), iterations per pass-1
+    job (one per caster, in ``casters`` order) and per pass-2 job, the pass-2 jobs'
+    (triangle, node key) arrays, and the counters (node tests, accepts, rejects, extra
+    rejects, leaf visits, largest frontier)."""
+    d = shape.levels
     stop = expand_level if passes == 2 else d + 1
-    trav.iters = jnp.zeros(bucket(len(casters), minimum=256), jnp.int32)
-    collected = []
-    for lo, hi in _waves(len(casters), wave):
-        tri, key, job, n = _frontier(casters, None, lo, hi)
-        out = trav.run(tri, key, job, n, 0, stop)
-        if passes == 2 and out is not None:
-            t, k, m = out
-            collected.append((np.asarray(t)[:m], np.asarray(k)[:m]))
-    iters1 = np.asarray(trav.iters)[: len(casters)]
-    tri2 = np.concatenate([c[0] for c in collected]) if collected else np.zeros(0, np.int32)
-    key2 = np.concatenate([c[1] for c in collected]) if collected else np.zeros(0, np.uint32)
-    trav.iters = jnp.zeros(bucket(len(tri2), minimum=256), jnp.int32)
+    key2 = ("out", shape, opts, expand_level)
+    out_cap = _CAPS.get(key2, MIN_FRONTIER) if passes == 2 else 0
+    st1, out_cap = run_pass(timer, shape, params, opts, a, accepted, tile_shadow, tile_tests,
+                            casters, np.zeros(len(casters), np.uint32), len(casters), 0, stop,
+                            wave, out_cap)
+    host = jax.device_get({k: st1[k] for k in ("iters", "counts", "fmax", "leaf_visits",
+                                                "out_n")})
+    iters1 = host["iters"][: len(casters)]
+    counts = host["counts"].astype(np.int64)
+    leaf_visits, fmax = int(host["leaf_visits"]), int(host["fmax"])
+    tri2 = np.zeros(0, np.int32)
+    nodes2 = np.zeros(0, np.uint32)
+    iters2 = np.zeros(0, np.int64)
+    st = st1
     if passes == 2:
-        for lo, hi in _waves(len(tri2), wave):
-            tri, key, job, n = _frontier(tri2, key2, lo, hi)
-            trav.run(tri, key, job, n, expand_level, d + 1)
-    iters2 = np.asarray(trav.iters)[: len(tri2)]
-    return iters1, iters2, tri2, key2
+        _CAPS[key2] = out_cap
+        m = int(host["out_n"])
+        tri2 = np.asarray(st1["out_tri"])[:m]
+        nodes2 = np.asarray(st1["out_node"])[:m]
+        st, _ = run_pass(timer, shape, params, opts, a, st1["accepted"], st1["tile_shadow"],
+                         st1["tile_tests"], tri2, nodes2, m, expand_level, d + 1, wave, 0)
+        h2 = jax.device_get({k: st[k] for k in ("iters", "counts", "fmax", "leaf_visits")})
+        iters2 = h2["iters"][:m]
+        counts += h2["counts"]
+        leaf_visits += int(h2["leaf_visits"])
+        fmax = max(fmax, int(h2["fmax"]))
+    stats = dict(counts=counts, leaf_visits=leaf_visits, frontier_max=fmax)
+    return st, iters1, iters2, tri2, nodes2, stats
+
+
+@functools.partial(jax.jit, static_argnames=("shape",))
+def _tile_arrays(shape, table, pos, scale, keys):
+    """Tile-major copies of the samples (x, y, z, scale, key, valid: [tiles, P] each), so
+    a leaf job gathers its tile's samples as rows."""
+    s = pos.shape[0]
+    valid = table < s
+    sc = jnp.minimum(table, s - 1)
+    p = pos[sc]
+    return dict(tile_x=p[..., 0], tile_y=p[..., 1], tile_z=p[..., 2], tile_scale=scale[sc],
+                tile_key=keys[sc], tile_valid=valid)
+
+
+@functools.partial(jax.jit, static_argnames=("shape",))
+def _finish(shape, keys, valid, slot, accepted, tile_shadow, tile_tests):
+    """Per sample: shadowed by a leaf test or inside a trivially accepted node (merge),
+    trivially-accepted-only, and test-and-sets. ``accepted`` is bool [rows, 32] (a row
+    per inner node of every level, see :func:`level_offsets`)."""
+    ta = jnp.zeros(keys.shape, bool)
+    flat = accepted.reshape(-1)
+    rows = level_offsets(shape)[0]
+    for level in range(1, shape.levels + 1):
+        ta |= flat[32 * rows[level - 1] + (keys >> shape.shift(level)).astype(jnp.int32)]
+    ta &= valid
+    leaf = tile_shadow.reshape(-1)[slot] & valid
+    tests = jnp.where(valid, tile_tests.reshape(-1)[slot], 0)
+    return leaf | ta, ta & ~leaf, tests
 
 
 # --------------------------------------------------------------------------- pipeline
 
-@functools.partial(jax.jit, static_argnames=("tree",))
-def _sample_stage(tree, pos, view, px, py, count):
+@functools.partial(jax.jit, static_argnames=("shape",))
+def _sample_stage(shape, params, pos, view, px, py, count):
     """Coordinates [S, 3], keys [S] uint32, saturated [S] bool, valid [S] bool."""
+    tree = _with_params(shape, params)
     coords = ch.sample_coords(tree, pos, view)
     valid = jnp.arange(pos.shape[0]) < count
     coords = jnp.where(valid[:, None], coords, coords[0])
@@ -456,7 +624,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     with precision_mode(precision) as dtype:
         tree = (ch.cluster_layout(camera, z_bits, depth_slices) if kind == "cluster"
                 else ch.ptsv_layout(camera))
-        t_cap = bucket(scene.num_triangles, minimum=16)
+        t_cap = bucket(scene.num_triangles, minimum=MIN_TRIANGLES)
         tri = np.zeros((t_cap, 3, 3), dtype=dtype)
         tri[: scene.num_triangles] = scene.triangles
         planes, valid = timer.run("setup", world_setup, jnp.asarray(tri),
@@ -472,9 +640,11 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             if front_face_culling:
                 culled[: scene.num_triangles] = front_face_culled(scene, light_h)
             casters = np.flatnonzero(valid & ~culled).astype(np.int32)
-            s_cap = bucket(samples.count)
+            s_cap = bucket(samples.count, minimum=MIN_SAMPLES)
             pos = jnp.asarray(samples.padded_position(dtype, s_cap))
             scale_d = jnp.asarray(samples.padded(scale, dtype, s_cap))
+        shape = shape_tree(tree)
+        params = jnp.asarray(tree_params(tree, dtype))
         with timer.stage("build"):
             px = (samples.index % w).astype(np.int32)
             py = (samples.index // w).astype(np.int32)
@@ -483,10 +653,17 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             pxp[: samples.count], pyp[: samples.count] = px, py
             view = jnp.asarray(camera.view_matrix().astype(dtype))
             coords, keys, saturated, svalid = _sample_stage(
-                tree, pos, view, jnp.asarray(pxp), jnp.asarray(pyp), samples.count)
-            hier = ch.build(tree, keys, svalid, coords, scale_d, storage)
-            table = jnp.asarray(tile_table(tree, px, py, s_cap))
-            jax.block_until_ready(hier.lo)
+                shape, params, pos, view, jnp.asarray(pxp), jnp.asarray(pyp), samples.count)
+            hier = dataclasses.replace(ch.build(shape, keys, svalid, coords, scale_d, storage),
+                                       tree=tree)
+            table = tile_table(tree, px, py, s_cap)
+            tiles = _tile_arrays(shape, jnp.asarray(table), pos, scale_d, keys)
+            tw, th = tree.tile
+            slot = np.zeros(s_cap, np.int32)
+            slot[: samples.count] = (((py // th) * tree.tiles_x + px // tw) * (tw * th)
+                                     + (py % th) * tw + px % tw)
+            slot = jnp.asarray(slot)
+            jax.block_until_ready((hier.lo, tiles))
         with timer.stage("setup"):
             qmax = float(jnp.max(jnp.where(svalid, coords[:, 2], 0))) if samples.count else 1.0
             pmax = float(np.abs(samples.position).max()) if samples.count else 1.0
@@ -498,22 +675,29 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             jax.block_until_ready(g)
         levels = tree.levels
         level_l = min(max(1, expand_level), levels)
+        axes = _explicit_axes(tree, bounds)
         with timer.stage("traverse"):
-            trav = _Traversal(hier, _explicit_axes(tree, bounds), extra != "none", g, tol,
-                              jnp.asarray(bound), planes, pos, scale_d, keys, table, prune,
-                              leaf_samples == "cluster")
-            iters1, iters2, tri2, key2 = traverse(
-                trav, casters, passes=passes, expand_level=level_l,
-                wave=wave if prune else None)
-            jax.block_until_ready(trav.shadow)
+            arrays = dict(flat_hierarchy(hier, tree, dtype), g=g, tol=tol,
+                          bound=jnp.asarray(bound), planes=planes, **tiles)
+            accepted = jnp.zeros((level_offsets(tree)[1], 32), bool)
+            p_tiles = tree.tiles_x * tree.tiles_y
+            opts = (axes, storage, extra != "none", bool(prune), leaf_samples == "cluster")
+            st, iters1, iters2, tri2, key2, stats = traverse(
+                timer, shape, params, opts, arrays, casters, accepted,
+                jnp.zeros((p_tiles, tree.tile_pixels), bool),
+                jnp.zeros((p_tiles, tree.tile_pixels), jnp.int32), passes=passes,
+                expand_level=level_l, wave=wave if prune else None)
+            jax.block_until_ready(st["tile_shadow"])
         with timer.stage("merge"):
-            ta = _merge(tree, keys, svalid, tuple(trav.accepted))
-            shadow_all = np.asarray(trav.shadow | ta)[: samples.count]
-            ta_only = np.asarray(ta & ~trav.shadow)[: samples.count]
-            tests = np.asarray(trav.tests)[: samples.count].astype(np.int64)
+            shadow_d, ta_d, tests_d = _finish(shape, keys, svalid, slot, st["accepted"],
+                                              st["tile_shadow"], st["tile_tests"])
+            shadow_all = np.asarray(shadow_d)[: samples.count]
+            ta_only = np.asarray(ta_d)[: samples.count]
+            tests = np.asarray(tests_d)[: samples.count].astype(np.int64)
     lit = samples.scatter(~shadow_all, fill=False)
     job_iters = np.concatenate([iters1, iters2]) if passes == 2 else iters1
-    memory = ch.memory_report(tree, existing=sum(hier.counts))
+    counts_h = [int(c) for c in jax.device_get(hier.counts)]
+    memory = ch.memory_report(tree, existing=sum(counts_h))
     counters = {
         "samples": samples.count,
         "casters": int(len(casters)),
@@ -521,22 +705,22 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         "front_face_culled": int(culled[: scene.num_triangles].sum()),
         "tests": int(tests.sum()),
         "tests_per_pixel": samples.scatter(tests, fill=0),
-        "node_tests": int(trav.counts[0]),
-        "trivial_accepts": int(trav.counts[1]),
-        "trivial_rejects": int(trav.counts[2]),
-        "extra_plane_rejects": int(trav.counts[3]),
-        "leaf_visits": int(trav.leaf_visits),
+        "node_tests": int(stats["counts"][0]),
+        "trivial_accepts": int(stats["counts"][1]),
+        "trivial_rejects": int(stats["counts"][2]),
+        "extra_plane_rejects": int(stats["counts"][3]),
+        "leaf_visits": int(stats["leaf_visits"]),
         "ta_shadowed": int(ta_only.sum()),
         "jobs": int(len(job_iters)),
         "pass2_jobs": int(len(iters2)),
         "job_iterations_mean": float(job_iters.mean()) if len(job_iters) else 0.0,
         "job_iterations_max": int(job_iters.max()) if len(job_iters) else 0,
         "job_iterations_top": top_jobs(job_iters),
-        "frontier_max": int(trav.frontier_max),
-        "clusters": int(hier.clusters),
-        "hierarchy_nodes": int(sum(hier.counts)),
+        "frontier_max": int(stats["frontier_max"]),
+        "clusters": counts_h[-1],
+        "hierarchy_nodes": sum(counts_h),
         "hierarchy_bytes": int(memory["mask_bytes"] + (
-            memory["pointer_bytes"] + 24 * sum(hier.counts) if storage == "compact"
+            memory["pointer_bytes"] + 24 * sum(counts_h) if storage == "compact"
             else memory["full_bounds_bytes"])),
         "saturated_samples": int(np.asarray(saturated).sum()),
         "shadowed": int(shadow_all.sum()),
@@ -547,7 +731,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                "pass2_triangles": tri2, "pass2_nodes": key2, "casters": casters,
                "tree": tree, "memory": memory, "hierarchy": hier, "g": g, "tol": tol,
                "bound": bound, "planes": planes, "scale": scale_d, "keys": keys,
-               "table": table, "axes": _explicit_axes(tree, bounds), "extra": extra,
+               "table": table, "axes": axes, "extra": extra,
                "tests": tests, "sample_count": samples.count}
     return ShadowResult(lit, counters, timings, method, dict(options or {})), details
 
