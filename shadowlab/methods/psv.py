@@ -128,7 +128,8 @@ def build_tree(scene, light, camera, samples, *, dtype, shadow_eps, bias, order,
 
 @functools.lru_cache(maxsize=None)
 def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, overflow: str,
-                  stackless_cap: str, edge_tie: str, steps: int, directional: bool):
+                  stackless_cap: str, edge_tie: str, steps: int, directional: bool,
+                  fast: bool = False):
     """A jitted function running ``steps`` node visits of every lane of a bucket.
 
     Layout for speed on XLA/CPU (measured, docs/psv.md): every node field is its own
@@ -139,6 +140,12 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
     is a separate fusion that XLA/CPU recomputes the whole step for, so the state is
     packed into as few arrays as possible (a node-and-flags word, a stack-pointer,
     maximum and count word, the stack, the visit count).
+
+    ``fast`` (hybrid only): the stack-mode-only step, for buckets where no lane is in
+    stackless mode: a lane that would switch to stackless mode *stalls* instead (no
+    visit, no state change, sign bit of its word set) and the host runs the full hybrid
+    step on that bucket from the next chunk on. The full step costs twice the stack
+    step (both transitions and the return node are computed for every lane).
     """
     k = max(stack_size, 1)
 
@@ -165,6 +172,8 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             sl0 = (w & SL) != 0
             done0 = (w & DONE) != 0
             act = ~done0
+            if fast:
+                act = act & (w >= 0)               # stalled lanes wait for the full step
             n = jnp.where(act, node0, 0)
             q = n & 3
             is_cap = q == 3
@@ -198,7 +207,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 skip = jnp.zeros_like(act)
             visited = s["visited"] + act
 
-            if query != "stack":
+            if query != "stack" and not fast:
                 # -------- stackless transitions (d_stackless, hybrid in stackless mode)
                 a_link = g(anc, n >> 2)
                 if stackless_cap == "paper":
@@ -225,7 +234,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             # -------- stack transitions (psv, d_psv, hybrid in stack mode)
             st_word = s["stats"]
             sp = st_word & 63
-            if query == "hybrid":
+            if query == "hybrid" and not fast:
                 back = sl0 & twice0 & (n == s["ret"])   # returned to the switch node
                 in_sl = sl0 & ~back
                 st_mode = act & ~in_sl
@@ -237,7 +246,15 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             can = sp < stack_size
             push = st_mode & want & can
             full = st_mode & want & ~can
-            if query == "hybrid":
+            stall = jnp.zeros_like(act)
+            if fast:
+                # A switch would happen: leave the lane untouched for the full step.
+                stall = full
+                switch = lost = jnp.zeros_like(act)
+                st_mode = act & ~stall
+                push = push & ~stall
+                visited = s["visited"] + st_mode
+            elif query == "hybrid":
                 switch = full
                 lost = jnp.zeros_like(act)
             else:
@@ -264,7 +281,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 go_neg, n + 1, jnp.where(popped, top, -1))))
             sp2 = sp1 - popped
 
-            if query == "hybrid":
+            if query == "hybrid" and not fast:
                 sl_act = act & in_sl
                 node = jnp.where(st_mode, st_node, jnp.where(sl_act, sl_node, node0))
                 twice = jnp.where(st_mode, False, jnp.where(sl_act, sl_twice, twice0))
@@ -272,20 +289,22 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 lit_now = (st_mode & st_lit) | (sl_act & sl_lit)
                 sl_new = jnp.where(act, in_sl | switch, sl0)
             else:
-                node = jnp.where(act, st_node, node0)
+                node = jnp.where(st_mode, st_node, node0)
                 twice = twice0
-                shadow_now = act & st_shadow
-                lit_now = act & st_lit
+                shadow_now = st_mode & st_shadow
+                lit_now = st_mode & st_lit
                 sl_new = sl0
             word = _pack(node, twice, sl_new, ((w & SHADOW) != 0) | shadow_now,
                          done0 | shadow_now | lit_now)
+            if fast:
+                word = word | jnp.where(stall | (w < 0), STALL, 0)
             # stats word: sp (6 bits) | stack max << 6 (6 bits) | overflows << 12
             smax = jnp.maximum((st_word >> 6) & 63, jnp.where(st_mode, sp1, 0))
             new_sp = jnp.where(st_mode, sp2, sp)
             extra_count = lost if query == "stack" else switch
             stats = new_sp | (smax << 6) | (((st_word >> 12) + extra_count) << 12)
             out = dict(s, word=word, stack=stack, stats=stats, visited=visited)
-            if query == "hybrid":
+            if query == "hybrid" and not fast:
                 out["ret"] = jnp.where(switch, n, s["ret"])
             return out
 
@@ -347,6 +366,7 @@ def tile_size(b: int) -> int:
 
 NODE_MASK = (1 << 27) - 1
 TWICE, SL, SHADOW, DONE = 1 << 27, 1 << 28, 1 << 29, 1 << 30
+STALL = np.int32(np.iinfo(np.int32).min)    # sign bit: hybrid lane waiting for the full step
 MAX_STACK = 63          # the stats word keeps the stack pointer and maximum in 6 bits
 
 
@@ -497,13 +517,22 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         live0 = s_count if tree.root >= 0 else 0
     state = timer.run("query_setup", _init_kernel(b, query, k), jnp.int32(live0),
                       jnp.int32(max(tree.root, 0)))
+    fast = None
+    if query == "hybrid":
+        fast = _chunk_kernel(query, depth_test, wedge, stack_size, "lose", stackless_cap,
+                             edge_tie, chunk, bool(light_h[3] == 0), True)
+    use_fast = fast is not None
     while True:
         live = len(lane_id)
         args = (state, treeargs, *dev, light, tol)
-        state = timer.run("query", kernel, *args)
+        state = timer.run("query", fast if use_fast else kernel, *args)
         n_chunks += 1
         with timer.stage("query_compact"):
-            done = (np.asarray(state["word"])[:live] & DONE) != 0
+            word = np.asarray(state["word"])[:live]
+            done = (word & DONE) != 0
+            if fast is not None:
+                # The full hybrid step while some lane is stalled or in stackless mode.
+                use_fast = not np.any(((word < 0) | ((word & SL) != 0)) & ~done)
             keep = np.flatnonzero(~done)
             nb = bucket(len(keep), minimum=256, steps=4)
             if len(keep) and nb >= b:
