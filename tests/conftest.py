@@ -9,3 +9,12 @@ enable_compilation_cache()
 def precision(request):
     """Every exact-method test runs in float32 (the GPU's) and float64 (x64 on)."""
     return request.param
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tag the Warp kernel tests: the README test command runs them in a process of their
+    own, so Warp's bundled LLVM and XLA's never compile in the same process (a JAX
+    persistent-cache write crashed once after the kernel tests had run)."""
+    for item in items:
+        if item.module.__name__.startswith("test_kernels"):
+            item.add_marker(pytest.mark.kernels)
