@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.scene.procedural import default_view
+from shadowlab.figures import scene_view
 
 VARIANTS = [("capsule", {"bound": "capsule"}), ("sphere", {"bound": "sphere"}),
             ("capsule half-z", {"bound": "capsule", "half_z": True}),
@@ -33,11 +33,7 @@ STAGES = ["scene", "light-facing", "gather", "tile cone tests / tile", "list / t
 
 
 def run(cfg: dict) -> dict:
-    name = cfg.get("scene", "terrain")
-    params = dict(cfg.get("params", {}))
-    scene = sl.load_scene(name, **params)
-    view = default_view(name, scene, **params)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=tuple(cfg["resolution"])))
+    scene, view, gbuf = scene_view(cfg)
     light = view.light
     opts = dict(cfg.get("options", {}))
     funnel, lengths, cluster = [], [], []

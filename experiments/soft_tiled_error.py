@@ -29,8 +29,8 @@ import time
 import numpy as np
 
 import shadowlab as sl
+from shadowlab.figures import scene_view
 from shadowlab.analysis.metrics import compare_soft
-from shadowlab.scene.procedural import default_view
 
 
 def _variants(cfg):
@@ -68,11 +68,7 @@ def _crop(truth: np.ndarray, size: int) -> tuple[int, int]:
 
 
 def run(cfg: dict) -> dict:
-    name = cfg.get("scene", "terrain")
-    params = dict(cfg.get("params", {}))
-    scene = sl.load_scene(name, **params)
-    view = default_view(name, scene, **params)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=tuple(cfg["resolution"])))
+    scene, view, gbuf = scene_view(cfg)
     light = view.light
     valid = gbuf.valid
     rays = int(cfg["truth_rays"])

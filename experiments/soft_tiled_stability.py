@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.scene.procedural import default_view
+from shadowlab.figures import scene_view
 
 VARIANTS = [("paper, front", {"projection": "paper", "face_cull": "front"}),
             ("homog., front", {"projection": "homogeneous", "face_cull": "front"}),
@@ -34,11 +34,7 @@ VARIANTS = [("paper, front", {"projection": "paper", "face_cull": "front"}),
 
 
 def run(cfg: dict) -> dict:
-    name = cfg.get("scene", "terrain")
-    params = dict(cfg.get("params", {}))
-    scene = sl.load_scene(name, **params)
-    view = default_view(name, scene, **params)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=tuple(cfg["resolution"])))
+    scene, view, gbuf = scene_view(cfg)
     light = view.light
     valid = gbuf.valid
     truth = sl.soft_reference(scene, gbuf, light, rays_per_pixel=int(cfg["truth_rays"]), seed=0)

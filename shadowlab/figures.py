@@ -29,6 +29,21 @@ class ExperimentError(ValueError):
     pass
 
 
+def scene_view(cfg: dict, default_scene: str = "terrain"):
+    """The procedural scene of an experiment config (``scene``, ``params``), its default
+    view and the G-buffer at ``cfg["resolution"]``: (scene, view, gbuf)."""
+    from .raycast import render_gbuffer
+    from .scene import load_scene
+    from .scene.procedural import default_view
+
+    name = cfg.get("scene", default_scene)
+    params = dict(cfg.get("params", {}))
+    scene = load_scene(name, **params)
+    view = default_view(name, scene, **params)
+    gbuf = render_gbuffer(scene, view.camera.replace(resolution=tuple(cfg["resolution"])))
+    return scene, view, gbuf
+
+
 def discover(root: Path) -> dict[str, Path]:
     folder = root / "experiments"
     if not folder.is_dir():
