@@ -282,20 +282,11 @@ def top_query(plane: wp.array2d(dtype=wp.float32), pos: wp.array(dtype=wp.int32)
         sl_shadow = (not skip) and (not sl_desc) and inside and is_cap
         sl_lit = sl_node < 0 and not sl_shadow
 
-        if query == 1:
-            node = sl_node
-            twice = sl_twice
-            if sl_shadow:
-                shadow = True
-                done = True
-            if sl_lit:
-                done = True
-            continue
-
-        # ---- stack transitions (PSV, D-PSV; D-Hybrid in stack mode)
+        # D-Hybrid back at the switch node with both visits done: resume the stack
         if query == 2 and in_sl and twice and n == ret:
-            in_sl = False               # back at the switch node: resume the stack
-        if query == 2 and in_sl:
+            in_sl = False
+        # D-Stackless, and D-Hybrid in stackless mode, take the stackless transition
+        if query == 1 or (query == 2 and in_sl):
             node = sl_node
             twice = sl_twice
             if sl_shadow:
