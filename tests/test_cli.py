@@ -186,3 +186,12 @@ def test_embree_time_at_equal_error_interpolates_log_log():
     assert embree_seconds_at_error(curve, 0.02) == pytest.approx(4.0)
     assert embree_seconds_at_error(curve, 0.001) is None
     assert embree_seconds_at_error(curve, 0.5) is None
+
+
+def test_bench_bad_arguments_exit_2(tmp_path, capsys):
+    assert main(["bench", "--only", "nope", "--out", str(tmp_path / "b.json")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown case(s) nope" in err and "gate-1024" in err
+    assert main(["bench", "--size", "ci", "--repeats", "0", "--out", str(tmp_path / "b.json")]) == 2
+    assert "--repeats must be >= 1" in capsys.readouterr().err
+    assert not (tmp_path / "b.json").exists()
