@@ -98,7 +98,7 @@ def test_setup_is_bit_exact(name):
     import jax.numpy as jnp
 
     from shadowlab.methods.brute_force import setup
-    from shadowlab.methods.clustered_ptsv import post_perspective_planes
+    from shadowlab.methods.volume_planes import post_perspective_planes
     from shadowlab.scene.view import hard_light
 
     scene, light, gbuf, _ = _scene(name)

@@ -11,7 +11,7 @@ Stages, each a kernel (or two) with the same inputs, rounding and counters as
   pads the boxes as ``cluster_hierarchy.pad_box`` does.
 - ``setup``: a thread per triangle: the four world-space shadow-volume planes (the math
   of ``geometry.planes.shadow_volume_planes``), the post-perspective rows, the three
-  extra culling planes and the tolerances (``clustered_ptsv.post_perspective_planes``).
+  extra culling planes and the tolerances (``volume_planes.post_perspective_planes``).
 - ``traverse_lanes`` / ``traverse_warp``: Algorithm 1 with persistent workers pulling
   jobs from an atomic counter. A job is a triangle (pass 1, from the root) or a
   (triangle, node) pair (pass 2 of the two-pass variant, from level L). Each visit of
@@ -197,7 +197,7 @@ def _post_perspective(t: wp.int32, inv_view: wp.mat44f, r00: wp.float32, r11: wp
                       qmax: wp.float32, pmax: wp.float32, extra: wp.int32, fma: wp.int32,
                       planes: wp.array2d(dtype=wp.float32), g: wp.array3d(dtype=wp.float32),
                       tol: wp.array2d(dtype=wp.float32)):
-    """clustered_ptsv.post_perspective_planes for triangle t."""
+    """volume_planes.post_perspective_planes for triangle t."""
     # post-perspective rows: W' = W inv(View) (XLA's dot: (p0 m0 + p1 m1) + (p2 m2 + p3 m3))
     # tolerances, as XLA's fusion computes them: q4 = qmax 4u (reassociated), the sum of
     # |n| reduced as (|n0| + |n2|) + |n1|, the slack's product fused into the final add

@@ -18,7 +18,7 @@ Node bounds live in *post-perspective space* ``(nx, ny, q)``: NDC x and y and
 ``q = 1 / w`` (w = view depth). NDC z is an affine function of q, so these are the
 paper's clip-space AABBs, parametrised so that a clip-space plane is an affine
 function of (nx, ny, q) and far depths keep their float resolution (see
-``clustered_ptsv.post_perspective_planes``). Bounds are *implicit* (from the key) or
+``volume_planes.post_perspective_planes``). Bounds are *implicit* (from the key) or
 *explicit* (min / max over the node's samples), in one of two storage layouts:
 ``full`` (an array over every node of a level, the paper's first version) or
 ``compact`` (an int32 pointer per node into a list of the existing nodes' boxes, the
