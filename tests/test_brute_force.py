@@ -111,3 +111,129 @@ def test_deterministic_and_timed():
     assert a.scalar_counters() == b.scalar_counters()
     assert {"setup", "test", "total"} <= set(b.timings)
     assert b.timings["setup_compile"] == 0.0      # compiled once, reused
+
+
+# --------------------------------------------------------------------------- setup rounding
+
+def _numpy_setup(tri, light):
+    """brute_force.setup as plain NumPy, one IEEE operation at a time (NumPy never fuses
+    a multiply into an add): planes [T, 16], valid [T]."""
+    dt = tri.dtype.type
+    tol = dt(64 * np.finfo(dt).eps)
+    lx, ly, lz, lw = (dt(x) for x in light)
+
+    def dot(a, b):
+        return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0]]
+
+    def oriented(n, d, flip):
+        n = [np.where(flip, -x, x) for x in n]
+        d = np.where(flip, -d, d)
+        length = np.sqrt(dot(n, n))
+        safe = np.where(length > 0, length, dt(1))
+        return [n[0] / safe, n[1] / safe, n[2] / safe, d / safe], length
+
+    v = [[tri[:, i, k] for k in range(3)] for i in range(3)]
+    cols, ok = [], np.ones(len(tri), bool)
+    for i in range(3):
+        a, b, c = v[i], v[(i + 1) % 3], v[(i + 2) % 3]
+        swap = (b[0] < a[0]) | ((b[0] == a[0]) & ((b[1] < a[1]) | ((b[1] == a[1]) & (b[2] < a[2]))))
+        lo = [np.where(swap, b[k], a[k]) for k in range(3)]
+        hi = [np.where(swap, a[k], b[k]) for k in range(3)]
+        n = cross([hi[k] - lo[k] for k in range(3)],
+                  [lx - lw * lo[0], ly - lw * lo[1], lz - lw * lo[2]])
+        d = -dot(n, lo)
+        side = dot(n, c) + d
+        plane, length = oriented(n, d, side < 0)
+        ca, cb = [c[k] - a[k] for k in range(3)], [c[k] - b[k] for k in range(3)]
+        reach = np.maximum(np.sqrt(dot(ca, ca)), np.sqrt(dot(cb, cb)))
+        ok &= (length > 0) & (np.abs(side) > (tol * length) * reach)
+        cols += plane
+    cn = cross([v[1][k] - v[0][k] for k in range(3)], [v[2][k] - v[0][k] for k in range(3)])
+    cd = -dot(cn, v[0])
+    ls = dot(cn, [lx, ly, lz]) + lw * cd
+    plane, length = oriented(cn, cd, ls < 0)
+    tl = [lx - lw * v[0][0], ly - lw * v[0][1], lz - lw * v[0][2]]
+    ok &= (length > 0) & (np.abs(ls) > (tol * length) * np.sqrt(dot(tl, tl)))
+    return np.stack(cols + plane, axis=1), ok
+
+
+def _numpy_post(planes, inv_view, qmax, pmax, extra, p00, p11):
+    """volume_planes.post_perspective_planes as plain NumPy: g [T, 7, 4], tol [T, 7]."""
+    dt = planes.dtype.type
+    u = dt(np.finfo(dt).eps)
+    qmax, pmax = dt(qmax), dt(pmax)
+    r00, r11 = dt(1.0 / p00), dt(1.0 / p11)
+    p = planes.reshape(-1, 4, 4)
+    t = len(p)
+    rows, slack, wv = [], [], []
+    for i in range(4):
+        w = [((p[:, i, 0] * inv_view[0, j] + p[:, i, 1] * inv_view[1, j])
+              + p[:, i, 2] * inv_view[2, j]) + p[:, i, 3] * inv_view[3, j] for j in range(4)]
+        wv.append(w)
+        rows.append([w[0] * r00, w[1] * r11, w[3], -w[2]])
+        s3 = (np.abs(p[:, i, 0]) + np.abs(p[:, i, 1])) + np.abs(p[:, i, 2])
+        slack.append((s3 * pmax + np.abs(p[:, i, 3])) * (qmax * (dt(4) * u)))
+    for a, b in ((0, 2), (0, 1), (1, 2)):
+        never = [np.zeros(t, dt), np.zeros(t, dt), np.zeros(t, dt), np.ones(t, dt)]
+        if extra == "culling":
+            n = p[:, a, :3] + p[:, b, :3]
+            ok = np.sqrt((n[:, 0] * n[:, 0] + n[:, 1] * n[:, 1]) + n[:, 2] * n[:, 2]) > dt(1e-3)
+            row = [rows[a][k] + rows[b][k] for k in range(4)]
+            sl = slack[a] + slack[b]
+        else:                                                       # silhouette
+            ea, eb = wv[a][3], wv[b][3]
+            ok = ea * eb < 0
+            row = [np.abs(eb) * rows[a][k] + np.abs(ea) * rows[b][k] for k in range(4)]
+            sl = np.abs(eb) * slack[a] + np.abs(ea) * slack[b]
+        rows.append([np.where(ok, x, y) for x, y in zip(row, never)])
+        slack.append(np.where(ok, sl, dt(0)))
+    g = np.stack([np.stack(r, axis=-1) for r in rows], axis=1)
+    mag = ((np.abs(g[..., 0]) + np.abs(g[..., 1])) + np.abs(g[..., 2]) * qmax) + np.abs(g[..., 3])
+    return g, mag * (dt(64) * u) + np.stack(slack, axis=1)
+
+
+SETUP_SCENES = {"gate": {"trees": 3, "leaves_per_tree": 60, "bars": 4},
+                "sphere_grid": {"n": 3, "triangles_per_sphere": 120}, "soup": {"count": 80}}
+
+
+def test_setup_rounding_is_the_same_at_every_size(precision):
+    """brute_force.setup and post_perspective_planes equal a NumPy op-by-op loop bit for
+    bit, on the triangles as they are and padded to the capacity clustered_ptsv pads
+    them to (XLA's FMA contraction used to depend on that size)."""
+    import jax.numpy as jnp
+
+    from shadowlab.methods.brute_force import setup
+    from shadowlab.methods.common import precision_mode
+    from shadowlab.methods.volume_planes import post_perspective_planes
+    from shadowlab.scene.view import hard_light
+
+    with precision_mode(precision) as dt:
+        for name, params in SETUP_SCENES.items():
+            scene = sl.load_scene(name, **params)
+            view = default_view(name, scene, **params)
+            light = hard_light(view.light).homogeneous.astype(dt)
+            tri = scene.triangles.astype(dt)
+            n = len(tri)
+            want, want_ok = _numpy_setup(tri, light)
+            assert 0 < want_ok.sum() <= n
+            iv = np.linalg.inv(view.camera.view_matrix()).astype(dt)
+            qmax, pmax = dt(0.37), dt(np.abs(tri).max())
+            for cap in (n, 2048):
+                padded = np.zeros((cap, 3, 3), dt)
+                padded[:n] = tri
+                planes, ok = setup(jnp.asarray(padded), jnp.asarray(light))
+                np.testing.assert_array_equal(np.asarray(planes)[:n], want)
+                np.testing.assert_array_equal(np.asarray(ok)[:n], want_ok)
+                assert np.asarray(planes).dtype == dt
+                for extra in (("culling", "silhouette") if cap == 2048 else ("culling",)):
+                    g, tol = post_perspective_planes(
+                        planes.reshape(-1, 4, 4), jnp.asarray(iv), jnp.asarray(qmax),
+                        jnp.asarray(pmax), extra=extra, p00=1.37, p11=1.81)
+                    wg, wtol = _numpy_post(np.asarray(planes)[:n], iv, qmax, pmax, extra,
+                                           1.37, 1.81)
+                    np.testing.assert_array_equal(np.asarray(g)[:n], wg)
+                    np.testing.assert_array_equal(np.asarray(tol)[:n], wtol)

@@ -14,6 +14,8 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from .brute_force import opaque_mul, opaque_zero
+
 _ADJACENT = ((0, 2), (0, 1), (1, 2))     # edge planes meeting at vertex 0, 1, 2
 _MARGIN_ULPS = 64
 
@@ -41,6 +43,14 @@ def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: fl
         line: a 2D line on screen bounding the volume's projection.
       - "none".
 
+    Rounding: every value is the same IEEE operations in the same order for any T
+    (the Warp setup kernel repeats them): products through ``brute_force.opaque_mul``
+    (never fused into FMAs), sums left to right (``W inv(V)`` as
+    ``((p0 m0j + p1 m1j) + p2 m2j) + p3 m3j``, no dot), ``1 / p00`` and ``1 / p11``
+    rounded once on the host and multiplied, slack ``(s3 pmax + |d|) (qmax 4u)`` with
+    ``s3 = (|n0| + |n1|) + |n2|``, ``tol = mag 64u + slack`` with
+    ``mag = ((|g0| + |g1|) + |g2| qmax) + |g3|`` (4u and 64u are powers of two).
+
     Args:
         planes: [T, 4, 4] world planes (rows: 3 edge planes, cap), working dtype.
         inv_view: [4, 4] view -> world matrix. qmax: max sample q (1 / world units).
@@ -51,31 +61,48 @@ def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: fl
         (values in units of world distance / w).
     """
     dtype = planes.dtype
-    u = jnp.finfo(dtype).eps
-    wv = planes @ inv_view
-    g = jnp.stack([wv[..., 0] / p00, wv[..., 1] / p11, wv[..., 3], -wv[..., 2]], axis=-1)
-    slack = 4 * u * (jnp.sum(jnp.abs(planes[..., :3]), -1) * pmax
-                     + jnp.abs(planes[..., 3])) * qmax                      # [T, 4]
-    never = jnp.zeros_like(g[:, 0]).at[:, 3].set(1)
-    rows, rslack = [], []
+    u = float(jnp.finfo(dtype).eps)
+    zero = opaque_zero(inv_view)
+
+    def mul(a, b):
+        return opaque_mul(a, b, zero)
+
+    t = planes.shape[0]
+    p = [[planes[:, i, k] for k in range(4)] for i in range(4)]     # p[plane][coef]: [T]
+    m = [[inv_view[i, j] for j in range(4)] for i in range(4)]
+    r00 = jnp.asarray(1.0 / p00, dtype)         # the reciprocals rounded once, on the host
+    r11 = jnp.asarray(1.0 / p11, dtype)
+    q4 = mul(qmax, jnp.asarray(4 * u, dtype))
+    wv, g, inner, slack = [], [], [], []
+    for i in range(4):
+        w = [((mul(p[i][0], m[0][j]) + mul(p[i][1], m[1][j])) + mul(p[i][2], m[2][j]))
+             + mul(p[i][3], m[3][j]) for j in range(4)]
+        wv.append(w)
+        g.append([mul(w[0], r00), mul(w[1], r11), w[3], -w[2]])
+        s3 = (jnp.abs(p[i][0]) + jnp.abs(p[i][1])) + jnp.abs(p[i][2])
+        inner.append(mul(s3, pmax) + jnp.abs(p[i][3]))
+        slack.append(mul(inner[i], q4))
+    one, nil = jnp.ones(t, dtype), jnp.zeros(t, dtype)
     for a, b in _ADJACENT:
         if extra == "culling":
-            n = planes[:, a, :3] + planes[:, b, :3]
-            ok = jnp.linalg.norm(n, axis=-1) > 1e-3
-            row = g[:, a] + g[:, b]
-            sl = slack[:, a] + slack[:, b]
+            n = [p[a][k] + p[b][k] for k in range(3)]
+            ok = jnp.sqrt((mul(n[0], n[0]) + mul(n[1], n[1])) + mul(n[2], n[2])) > 1e-3
+            row = [g[a][k] + g[b][k] for k in range(4)]
+            sl = slack[a] + slack[b]
         elif extra == "silhouette":
-            ea, eb = wv[:, a, 3], wv[:, b, 3]
-            ok = ea * eb < 0
-            row = jnp.abs(eb)[:, None] * g[:, a] + jnp.abs(ea)[:, None] * g[:, b]
-            sl = jnp.abs(eb) * slack[:, a] + jnp.abs(ea) * slack[:, b]
+            ea, eb = wv[a][3], wv[b][3]
+            ok = mul(ea, eb) < 0
+            row = [mul(jnp.abs(eb), g[a][k]) + mul(jnp.abs(ea), g[b][k]) for k in range(4)]
+            sl = mul(jnp.abs(eb), slack[a]) + mul(jnp.abs(ea), slack[b])
         else:
-            ok = jnp.zeros(g.shape[0], bool)
-            row, sl = never, jnp.zeros_like(slack[:, 0])
-        rows.append(jnp.where(ok[:, None], row, never))
-        rslack.append(jnp.where(ok, sl, 0))
-    g = jnp.concatenate([g, jnp.stack(rows, axis=1)], axis=1)
-    slack = jnp.concatenate([slack, jnp.stack(rslack, axis=1)], axis=1)
-    mag = (jnp.abs(g[..., 0]) + jnp.abs(g[..., 1]) + jnp.abs(g[..., 2]) * qmax
-           + jnp.abs(g[..., 3]))
-    return g, (_MARGIN_ULPS * u * mag + slack).astype(dtype)
+            ok, row, sl = jnp.zeros(t, bool), [nil, nil, nil, one], nil
+        g.append([jnp.where(ok, x, y) for x, y in zip(row, [nil, nil, nil, one])])
+        slack.append(jnp.where(ok, sl, 0))
+    c64 = jnp.asarray(_MARGIN_ULPS * u, dtype)
+    tol = []
+    for r in range(7):
+        mag = ((jnp.abs(g[r][0]) + jnp.abs(g[r][1])) + mul(jnp.abs(g[r][2]), qmax)) \
+            + jnp.abs(g[r][3])
+        tol.append(mul(mag, c64) + slack[r])
+    g = jnp.stack([jnp.stack(row, axis=-1) for row in g], axis=1)
+    return g, jnp.stack(tol, axis=1).astype(dtype)
