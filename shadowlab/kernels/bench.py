@@ -123,10 +123,6 @@ def bench_clustered(size: int, repeats: int, scene_name: str = "gate", params=No
             **_agreement(jr[-1], k, truth, gbuf),
             "tests": k.counters["tests"], "node_tests": k.counters["node_tests"],
         }
-    # the same with the world planes of the JAX setup (XLA's shape-dependent rounding
-    # of brute_force.setup, see docs/kernels.md): the fast form only
-    k = kc.run(scene, gbuf, view.light, form="warp", setup_from="jax_world", **options)
-    out["warp_with_jax_world_planes"] = _agreement(jr[-1], k, truth, gbuf)
     return out
 
 

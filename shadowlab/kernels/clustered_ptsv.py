@@ -33,9 +33,11 @@ Two forms of the warp-level kernels:
 - *fast* (``form="warp"``): one thread per warp, looping over the 32 lanes (same
   results, no block synchronisation; what a CPU runs fastest).
 
-Float rounding: compiled with ``fuse_fp=False``; where XLA fuses multiply-adds on this
-machine the kernels place the same FMAs explicitly (``fma`` flag, see
-``psv.xla_contracts`` and docs/kernels.md).
+Float rounding: compiled with ``fuse_fp=False``. The setup is plain operations in the
+order of the JAX setup, which never fuses them (``brute_force.opaque_mul``); where the
+JAX leaf test and box padding let XLA fuse multiply-adds on this machine, the kernels
+place the same FMAs explicitly (``fma`` flag, see ``psv.xla_contracts`` and
+docs/kernels.md).
 """
 
 from __future__ import annotations
@@ -57,7 +59,6 @@ SENTINEL = 0xFFFFFFFF                  # "no key" (keys have fewer than 32 bits)
 TILE_PIXELS = 64                       # an 8 x 8 tile
 N_COUNTS = 5                           # node tests, accepts, rejects, extra rejects, leaf visits
 FORMS = ("lanes", "warp")
-SETUP_FROM = ("kernel", "jax_world")
 
 U32Vec = wp.types.vector(length=MAX_LEVELS, dtype=wp.uint32)
 I32Vec = wp.types.vector(length=MAX_LEVELS, dtype=wp.int32)
@@ -95,27 +96,19 @@ def _mul_add(a: wp.float32, b: wp.float32, c: wp.float32, fma: wp.int32):
 
 
 @wp.func
-def _dot_reduce(a: wp.vec3f, b: wp.vec3f, fma: wp.int32):
-    # jnp.sum(a * b, -1): XLA's reduction loop, acc = a0 b0; acc += a1 b1; acc += a2 b2
-    acc = a[0] * b[0]
-    acc = _mul_add(a[1], b[1], acc, fma)
-    return _mul_add(a[2], b[2], acc, fma)
+def _dot3(a: wp.vec3f, b: wp.vec3f):
+    return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
 
 
 @wp.func
-def _norm(a: wp.vec3f, fma: wp.int32):
-    # jnp.linalg.norm as XLA fuses it: sqrt(fma(a2, a2, fma(a0, a0, a1 a1)))
-    if fma != 0:
-        return wp.sqrt(fma32(a[2], a[2], fma32(a[0], a[0], a[1] * a[1])))
-    return wp.sqrt((a[0] * a[0] + a[1] * a[1]) + a[2] * a[2])
+def _norm(a: wp.vec3f):
+    return wp.sqrt(_dot3(a, a))
 
 
 @wp.func
-def _cross(a: wp.vec3f, b: wp.vec3f, fma: wp.int32):
-    # a_i b_j - a_j b_i contracted as fma(a_i, b_j, -(a_j b_i))
-    return wp.vec3f(_mul_add(a[1], b[2], -(a[2] * b[1]), fma),
-                    _mul_add(a[2], b[0], -(a[0] * b[2]), fma),
-                    _mul_add(a[0], b[1], -(a[1] * b[0]), fma))
+def _cross(a: wp.vec3f, b: wp.vec3f):
+    return wp.vec3f(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                    a[0] * b[1] - a[1] * b[0])
 
 
 @wp.func
@@ -127,33 +120,34 @@ def _lex_less(a: wp.vec3f, b: wp.vec3f):
 def _store_plane(planes: wp.array2d(dtype=wp.float32), t: wp.int32, row: wp.int32,
                  n: wp.vec3f, d: wp.float32, length: wp.float32):
     safe = wp.where(length > 0.0, length, wp.float32(1.0))
-    r = wp.float32(1.0) / safe                   # XLA: n / broadcast(l) -> n * (1 / l)
-    planes[t, 4 * row + 0] = n[0] * r
-    planes[t, 4 * row + 1] = n[1] * r
-    planes[t, 4 * row + 2] = n[2] * r
+    planes[t, 4 * row + 0] = n[0] / safe
+    planes[t, 4 * row + 1] = n[1] / safe
+    planes[t, 4 * row + 2] = n[2] / safe
     planes[t, 4 * row + 3] = d / safe
 
 
 @wp.kernel
 def setup(tri: wp.array3d(dtype=wp.float32), light: wp.vec4f, inv_view: wp.mat44f,
           r00: wp.float32, r11: wp.float32, qmax: wp.float32, pmax: wp.float32,
-          degen: wp.float32, extra: wp.int32, fma: wp.int32, world: wp.int32,
+          degen: wp.float32, extra: wp.int32, world: wp.int32,
           planes: wp.array2d(dtype=wp.float32), valid: wp.array(dtype=wp.int32),
           g: wp.array3d(dtype=wp.float32), tol: wp.array2d(dtype=wp.float32)):
     """A thread per triangle: world planes [T, 16], valid [T] (``world=0``: given in
     ``planes`` / ``valid``), post-perspective rows g [T, 7, 4] (edges, cap, three extra
-    culling planes) and tolerances tol [T, 7]."""
+    culling planes) and tolerances tol [T, 7]. The operations of ``brute_force.setup``
+    and ``volume_planes.post_perspective_planes`` in their order, one rounding each
+    (``fuse_fp=False``), so the results are equal bit for bit."""
     t = wp.tid()
     if world != 0:
-        _world_planes(t, tri, light, degen, fma, planes, valid)
-    _post_perspective(t, inv_view, r00, r11, qmax, pmax, extra, fma, planes, g, tol)
+        _world_planes(t, tri, light, degen, planes, valid)
+    _post_perspective(t, inv_view, r00, r11, qmax, pmax, extra, planes, g, tol)
 
 
 @wp.func
 def _world_planes(t: wp.int32, tri: wp.array3d(dtype=wp.float32), light: wp.vec4f,
-                  degen: wp.float32, fma: wp.int32, planes: wp.array2d(dtype=wp.float32),
+                  degen: wp.float32, planes: wp.array2d(dtype=wp.float32),
                   valid: wp.array(dtype=wp.int32)):
-    """geometry.planes.shadow_volume_planes for triangle t."""
+    """brute_force.setup for triangle t."""
     v = wp.mat33f()
     for i in range(3):
         for k in range(3):
@@ -169,58 +163,53 @@ def _world_planes(t: wp.int32, tri: wp.array3d(dtype=wp.float32), light: wp.vec4
         if _lex_less(b, a):
             lo = b
             hi = a
-        to_light = lxyz - light[3] * lo
-        n = _cross(hi - lo, to_light, fma)
-        d = -_dot_reduce(n, lo, fma)
-        side = _dot_reduce(n, c, fma) + d
-        sgn = wp.where(side < 0.0, wp.float32(-1.0), wp.float32(1.0))
-        n = n * sgn
-        d = d * sgn
-        length = _norm(n, fma)
+        n = _cross(hi - lo, lxyz - light[3] * lo)
+        d = -_dot3(n, lo)
+        side = _dot3(n, c) + d
+        if side < 0.0:
+            n = -n
+            d = -d
+        length = _norm(n)
         _store_plane(planes, t, e, n, d, length)
-        reach = wp.max(_norm(c - a, fma), _norm(c - b, fma))
-        ok = ok and length > 0.0 and wp.abs(side) > degen * length * reach
-    cn = _cross(v[1] - v[0], v[2] - v[0], fma)
-    cd = -_dot_reduce(cn, v[0], fma)
-    ls = _dot_reduce(cn, lxyz, fma) + light[3] * cd
-    sgn = wp.where(ls < 0.0, wp.float32(-1.0), wp.float32(1.0))
-    cn = cn * sgn
-    cd = cd * sgn
-    length = _norm(cn, fma)
+        reach = wp.max(_norm(c - a), _norm(c - b))
+        ok = ok and length > 0.0 and wp.abs(side) > (degen * length) * reach
+    cn = _cross(v[1] - v[0], v[2] - v[0])
+    cd = -_dot3(cn, v[0])
+    ls = _dot3(cn, lxyz) + light[3] * cd
+    if ls < 0.0:
+        cn = -cn
+        cd = -cd
+    length = _norm(cn)
     _store_plane(planes, t, 3, cn, cd, length)
-    ok = ok and length > 0.0 and wp.abs(ls) > degen * length * _norm(lxyz - light[3] * v[0], fma)
+    ok = ok and length > 0.0 and wp.abs(ls) > (degen * length) * _norm(lxyz - light[3] * v[0])
     valid[t] = wp.where(ok, 1, 0)
 
 
 @wp.func
 def _post_perspective(t: wp.int32, inv_view: wp.mat44f, r00: wp.float32, r11: wp.float32,
-                      qmax: wp.float32, pmax: wp.float32, extra: wp.int32, fma: wp.int32,
+                      qmax: wp.float32, pmax: wp.float32, extra: wp.int32,
                       planes: wp.array2d(dtype=wp.float32), g: wp.array3d(dtype=wp.float32),
                       tol: wp.array2d(dtype=wp.float32)):
-    """volume_planes.post_perspective_planes for triangle t."""
-    # post-perspective rows: W' = W inv(View) (XLA's dot: (p0 m0 + p1 m1) + (p2 m2 + p3 m3))
-    # tolerances, as XLA's fusion computes them: q4 = qmax 4u (reassociated), the sum of
-    # |n| reduced as (|n0| + |n2|) + |n1|, the slack's product fused into the final add
+    """volume_planes.post_perspective_planes (extra "culling" or "none") for triangle t."""
     u = wp.float32(1.1920929e-07)
     q4 = qmax * (wp.float32(4.0) * u)
     c64 = wp.float32(64.0) * u
-    inner = wp.vec4f()
+    slack = wp.vec4f()
     for p in range(4):
         w = wp.vec4f()
         for j in range(4):
             w[j] = ((planes[t, 4 * p] * inv_view[0, j] + planes[t, 4 * p + 1] * inv_view[1, j])
-                    + (planes[t, 4 * p + 2] * inv_view[2, j]
-                       + planes[t, 4 * p + 3] * inv_view[3, j]))
+                    + planes[t, 4 * p + 2] * inv_view[2, j]) + planes[t, 4 * p + 3] * inv_view[3, j]
         g[t, p, 0] = w[0] * r00
         g[t, p, 1] = w[1] * r11
         g[t, p, 2] = w[3]
         g[t, p, 3] = -w[2]
-        s3 = (wp.abs(planes[t, 4 * p]) + wp.abs(planes[t, 4 * p + 2])) \
-            + wp.abs(planes[t, 4 * p + 1])
-        inner[p] = _mul_add(s3, pmax, wp.abs(planes[t, 4 * p + 3]), fma)
-        mag = _mul_add(wp.abs(g[t, p, 2]), qmax, wp.abs(g[t, p, 0]) + wp.abs(g[t, p, 1]),
-                       fma) + wp.abs(g[t, p, 3])
-        tol[t, p] = _mul_add(inner[p], q4, mag * c64, fma)
+        s3 = (wp.abs(planes[t, 4 * p]) + wp.abs(planes[t, 4 * p + 1])) \
+            + wp.abs(planes[t, 4 * p + 2])
+        slack[p] = (s3 * pmax + wp.abs(planes[t, 4 * p + 3])) * q4
+        mag = ((wp.abs(g[t, p, 0]) + wp.abs(g[t, p, 1])) + wp.abs(g[t, p, 2]) * qmax) \
+            + wp.abs(g[t, p, 3])
+        tol[t, p] = mag * c64 + slack[p]
     for x in range(3):
         ra = 0
         rb = 2
@@ -231,10 +220,9 @@ def _post_perspective(t: wp.int32, inv_view: wp.mat44f, r00: wp.float32, r11: wp
             rb = 2
         use = bool(False)  # noqa: UP018 (a dynamic Warp variable)
         if extra != 0:
-            nx = planes[t, 4 * ra] + planes[t, 4 * rb]
-            ny = planes[t, 4 * ra + 1] + planes[t, 4 * rb + 1]
-            nz = planes[t, 4 * ra + 2] + planes[t, 4 * rb + 2]
-            use = _norm(wp.vec3f(nx, ny, nz), fma) > wp.float32(1e-3)
+            use = _norm(wp.vec3f(planes[t, 4 * ra] + planes[t, 4 * rb],
+                                 planes[t, 4 * ra + 1] + planes[t, 4 * rb + 1],
+                                 planes[t, 4 * ra + 2] + planes[t, 4 * rb + 2])) > wp.float32(1e-3)
         for k in range(4):
             val = wp.float32(0.0)
             if k == 3:
@@ -244,10 +232,10 @@ def _post_perspective(t: wp.int32, inv_view: wp.mat44f, r00: wp.float32, r11: wp
             g[t, 4 + x, k] = val
         sl = wp.float32(0.0)
         if use:
-            sl = _mul_add(inner[ra], q4, inner[rb] * q4, fma)
-        mag = _mul_add(wp.abs(g[t, 4 + x, 2]), qmax, wp.abs(g[t, 4 + x, 0])
-                       + wp.abs(g[t, 4 + x, 1]), fma) + wp.abs(g[t, 4 + x, 3])
-        tol[t, 4 + x] = _mul_add(mag, c64, sl, fma)
+            sl = slack[ra] + slack[rb]
+        mag = ((wp.abs(g[t, 4 + x, 0]) + wp.abs(g[t, 4 + x, 1])) + wp.abs(g[t, 4 + x, 2]) * qmax) \
+            + wp.abs(g[t, 4 + x, 3])
+        tol[t, 4 + x] = mag * c64 + sl
 
 
 # --------------------------------------------------------------------------- build
@@ -803,7 +791,7 @@ def load(device: str | None = None) -> None:
 
 
 def triangle_setup(tri: np.ndarray, light_h: np.ndarray, camera, tree, qmax: float,
-                   pmax: float, extra: bool = True, world_planes=None, fma: bool | None = None,
+                   pmax: float, extra: bool = True, world_planes=None,
                    device: str | None = None) -> dict:
     """The ``setup`` kernel: world planes [T, 16], valid [T] bool, g [T, 7, 4], tol [T, 7]
     (float32), for triangles [T, 3, 3]. ``world_planes`` = (planes [T, 16], valid [T]):
@@ -811,8 +799,6 @@ def triangle_setup(tri: np.ndarray, light_h: np.ndarray, camera, tree, qmax: flo
     from ..geometry.planes import degeneracy_tolerance
 
     dev = init(device)
-    if fma is None:
-        fma = xla_contracts(np.float32)
     n = tri.shape[0]
     t = max(n, 1)
     f32 = np.float32
@@ -830,26 +816,11 @@ def triangle_setup(tri: np.ndarray, light_h: np.ndarray, camera, tree, qmax: flo
         wp.launch(setup, dim=n, device=dev, inputs=[
             _arr(tri, f32, dev), wp.vec4f(*light_h.astype(f32)), wp.mat44f(*iv.reshape(-1)),
             f32(1.0 / tree.p00), f32(1.0 / tree.p11), f32(qmax), f32(pmax),
-            f32(degeneracy_tolerance(np.float32)), int(extra), int(bool(fma)),
-            int(world_planes is None), *out.values()])
+            f32(degeneracy_tolerance(np.float32)), int(extra), int(world_planes is None),
+            *out.values()])
     h = {k: v.numpy()[:n] for k, v in out.items()}
     h["valid"] = h["valid"].astype(bool)
     return h
-
-
-def jax_world_planes(tri: np.ndarray, light_h: np.ndarray):
-    """``brute_force.setup`` as the JAX method calls it (triangles padded to its
-    power-of-two capacity: XLA's rounding depends on that shape, see docs/kernels.md)."""
-    import jax.numpy as jnp
-
-    from ..methods.brute_force import setup as world_setup
-    from ..methods.common import bucket
-
-    n = tri.shape[0]
-    padded = np.zeros((bucket(n, minimum=16), 3, 3), np.float32)
-    padded[:n] = tri
-    planes, valid = world_setup(jnp.asarray(padded), jnp.asarray(light_h.astype(np.float32)))
-    return np.asarray(planes)[:n], np.asarray(valid)[:n]
 
 
 class Hierarchy:
@@ -995,15 +966,10 @@ def _sample_stage(tree):
     return stage
 
 
-def prepare(scene, gbuf, light, o: dict, fma: bool | None = None, setup_from: str = "kernel",
-            device: str | None = None) -> dict:
+def prepare(scene, gbuf, light, o: dict, device: str | None = None) -> dict:
     """Everything before the traversal, as ``clustered_ptsv.run_traversal_method`` does it:
     samples, cluster keys and post-perspective coordinates (JAX, the inputs of the
     build), the ``setup`` kernel (planes, g, tol), bias terms, casters.
-
-    ``setup_from="jax_world"`` takes the world planes from the JAX setup
-    (``brute_force.setup`` at the method's padded shape) and computes only the
-    post-perspective part in the kernel.
     """
     import jax.numpy as jnp
 
@@ -1039,10 +1005,7 @@ def prepare(scene, gbuf, light, o: dict, fma: bool | None = None, setup_from: st
     pmax = float(np.abs(samples.position).max()) if samples.count else 1.0
     tri = scene.triangles.astype(f32)
     extra = bool(o["culling_planes"])
-    if setup_from not in SETUP_FROM:
-        raise ValueError(f"setup_from must be one of {SETUP_FROM}")
-    world = jax_world_planes(tri, light_h) if setup_from == "jax_world" else None
-    st = triangle_setup(tri, light_h, camera, tree, qmax, pmax, extra, world, fma, device)
+    st = triangle_setup(tri, light_h, camera, tree, qmax, pmax, extra, device=device)
     scale, bound = bias_terms(samples, light_h, st["planes"].reshape(-1, 4, 4),
                               cap_bias(scene, o["shadow_eps"]), o["bias"])
     bound = np.where(st["valid"], bound, -np.inf).astype(f32)
@@ -1175,7 +1138,7 @@ def run(scene, gbuf, light, **kw):
 
 
 def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
-                setup_from: str = "kernel", job_order=None, device=None, **options):
+                job_order=None, device=None, **options):
     """``clustered_ptsv`` with the kernels: (``ShadowResult``, details) with the JAX method's
     counters (all but ``frontier_max``, which belongs to the level-synchronous JAX
     traversal) and timings ``samples`` (view samples), ``keys`` (JAX: coordinates and
@@ -1193,7 +1156,7 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     dev = init(device)
     load(dev)
     fma = xla_contracts(np.float32)
-    p = prepare(scene, gbuf, light, o, fma, setup_from, dev)
+    p = prepare(scene, gbuf, light, o, dev)
     t1 = time.perf_counter()
     hier = build_hierarchy(p["tree"], p["table"], p["keys"], p["coords"], p["scale"],
                            o["storage"], form, fma, dev)
@@ -1233,7 +1196,7 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     timings["total"] = sum(timings.values())
     details = dict(r, prepared=p, hierarchy=hier)
     res = ShadowResult(lit, counters, timings, "kernels.clustered_ptsv",
-                       dict(o, form=form, workers=workers, setup_from=setup_from))
+                       dict(o, form=form, workers=workers))
     return res, details
 
 
