@@ -487,6 +487,25 @@ def _classify(t: wp.int32, level: wp.int32, child: wp.uint32, key_bits: wp.int32
 
 
 @wp.func
+def _test_child(word: wp.uint32, bit: wp.uint32, t: wp.int32, level: wp.int32,
+                child: wp.uint32, key_bits: wp.int32, levels: wp.int32,
+                layout: wp.array(dtype=wp.int32), ax: wp.vec3i,
+                imp_lo: wp.array(dtype=wp.float32), imp_hi: wp.array(dtype=wp.float32),
+                ioff: wp.array(dtype=wp.int32), storage: wp.int32,
+                ptr: wp.array(dtype=wp.int32), poff: wp.array(dtype=wp.int32),
+                boff: wp.array(dtype=wp.int32), lo: wp.array2d(dtype=wp.float32),
+                hi: wp.array2d(dtype=wp.float32), smin: wp.array(dtype=wp.float32),
+                g: wp.array3d(dtype=wp.float32), tol: wp.array2d(dtype=wp.float32),
+                bound: wp.array(dtype=wp.float32), extra: wp.int32):
+    """One lane's work at an inner node (both forms): the code of ``_classify`` for the
+    child whose bit ``bit`` is set in the node's mask ``word``, 4 if it is absent."""
+    if (word & bit) == wp.uint32(0):
+        return 4
+    return _classify(t, level, child, key_bits, levels, layout, ax, imp_lo, imp_hi, ioff,
+                     storage, ptr, poff, boff, lo, hi, smin, g, tol, bound, extra)
+
+
+@wp.func
 def _leaf_tile(leaf: wp.uint32, key_bits: wp.int32, layout: wp.array(dtype=wp.int32),
                tiles_x: wp.int32):
     x = wp.int32(0)
@@ -592,19 +611,15 @@ def traverse_warp(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=wp
                     acc_bits = wp.uint32(0)
                     int_bits = wp.uint32(0)
                     for lane in range(32):
-                        if ((word >> wp.uint32(lane)) & wp.uint32(1)) != wp.uint32(0):
-                            code = _classify(t, lv, (n << wp.uint32(5)) | wp.uint32(lane),
-                                             key_bits, levels, layout, ax, imp_lo, imp_hi, ioff,
-                                             storage, ptr, poff, boff, lo, hi, smin, g, tol,
-                                             bound, extra)
-                            if code == 0:
-                                acc_bits = acc_bits | (wp.uint32(1) << wp.uint32(lane))
-                            elif code == 3:
-                                int_bits = int_bits | (wp.uint32(1) << wp.uint32(lane))
-                            else:
-                                c_rej += 1
-                                if code == 2:
-                                    c_xrej += 1
+                        bit = wp.uint32(1) << wp.uint32(lane)
+                        code = _test_child(word, bit, t, lv, (n << wp.uint32(5)) | wp.uint32(lane),
+                                           key_bits, levels, layout, ax, imp_lo, imp_hi, ioff,
+                                           storage, ptr, poff, boff, lo, hi, smin, g, tol, bound,
+                                           extra)
+                        acc_bits = acc_bits | wp.where(code == 0, bit, wp.uint32(0))
+                        int_bits = int_bits | wp.where(code == 3, bit, wp.uint32(0))
+                        c_rej += wp.where(code == 1 or code == 2, 1, 0)
+                        c_xrej += wp.where(code == 2, 1, 0)
                     c_tests += popc(word)
                     c_acc += popc(acc_bits)
                     if acc_bits != wp.uint32(0):
@@ -703,11 +718,10 @@ def traverse_lanes(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=w
                                  planes, bound, fma, shadow, tests)
                 else:
                     word = masks[moff[lv] + wp.int32(n)]
-                    code = 4                          # 4: child absent
-                    if (word & bit) != wp.uint32(0):
-                        code = _classify(t, lv, (n << wp.uint32(5)) | wp.uint32(lane), key_bits,
-                                         levels, layout, ax, imp_lo, imp_hi, ioff, storage, ptr,
-                                         poff, boff, lo, hi, smin, g, tol, bound, extra)
+                    code = _test_child(word, bit, t, lv, (n << wp.uint32(5)) | wp.uint32(lane),
+                                       key_bits, levels, layout, ax, imp_lo, imp_hi, ioff,
+                                       storage, ptr, poff, boff, lo, hi, smin, g, tol, bound,
+                                       extra)
                     acc_bits = wp.tile_reduce(wp.bit_or, wp.tile(
                         wp.where(code == 0, bit, wp.uint32(0))))[0]           # BALLOT(TA)
                     int_bits = wp.tile_reduce(wp.bit_or, wp.tile(
