@@ -23,10 +23,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..geometry.planes import shadow_volume_planes
 from ..scene.view import hard_light
 from ..timing import StageTimer
 from . import top_tree as tt
+from .brute_force import setup as bf_setup
 from .common import BIAS_MODES, bias_terms, bucket, cap_bias, precision_mode, view_samples
 from .registry import Option, register
 from .result import ShadowResult
@@ -35,10 +35,6 @@ QUERIES = ("stack", "stackless", "hybrid")
 
 
 # --------------------------------------------------------------------------- casters
-
-@jax.jit
-def _setup(tri, light):
-    return shadow_volume_planes(tri, light)
 
 
 def frustum_light_hull(camera, light_h: np.ndarray, extent: float) -> np.ndarray:
@@ -60,11 +56,14 @@ def frustum_light_hull(camera, light_h: np.ndarray, extent: float) -> np.ndarray
 def casters(scene, light, camera, dtype, face_culling: str, frustum_culling: bool):
     """Planes [T, 4, 4] (dtype, NumPy), mask of kept triangles [T] and culling counts."""
     light_h = hard_light(light).homogeneous
-    t = bucket(scene.num_triangles, minimum=256)
+    # brute_force's own jitted setup at its padding: the same traced planes compiled in
+    # another jit differ by an ulp on most triangles (XLA's fusion and FMA choices),
+    # which decides samples whose segment to the light grazes an edge (docs/psv.md).
+    t = bucket(scene.num_triangles, minimum=16)
     tri = np.zeros((t, 3, 3), dtype)
     tri[: scene.num_triangles] = scene.triangles
-    planes, valid = _setup(jnp.asarray(tri), jnp.asarray(light_h.astype(dtype)))
-    planes = np.asarray(planes)[: scene.num_triangles]
+    planes, valid = bf_setup(jnp.asarray(tri), jnp.asarray(light_h.astype(dtype)))
+    planes = np.asarray(planes).reshape(t, 4, 4)[: scene.num_triangles]
     keep = np.asarray(valid)[: scene.num_triangles].copy()
     culled = {"degenerate": int((~keep).sum()), "face": 0, "frustum": 0}
     tris = scene.triangles
