@@ -169,12 +169,42 @@ def ptsv_layout(camera) -> TreeLayout:
 
 # --------------------------------------------------------------------------- samples
 
+def _opaque_mul(a, b, zero):
+    """a * b rounded once, opaque to fused multiply-add contraction: the product's bits are
+    ORed with ``zero`` (an int 0 that XLA cannot prove to be 0), so it cannot be fused
+    into a following add."""
+    p = a * b
+    it = jnp.int64 if p.dtype == jnp.float64 else jnp.int32
+    return jax.lax.bitcast_convert_type(jax.lax.bitcast_convert_type(p, it) | zero.astype(it),
+                                        p.dtype)
+
+
+def view_transform(position, view):
+    """View-space points [S, 3] of world points [S, 3] (``view`` [4, 4], same dtype).
+
+    float32: ``((x r0 + y r1) + z r2) + t`` per row, each product rounded once, in
+    columns. That is the rounding of XLA's float32 ``position @ R.T + t`` (which it
+    lowers to a multiply and a size-3 reduction: measured bit-identical on every sample
+    of gate and sphere_grid at 1024^2), but the [S, 3] reduction is ~50x slower than
+    this column form. float64: the dot itself (XLA's float64 dot rounds as an FMA chain,
+    which XLA cannot be made to emit elementwise), so keys stay what they were.
+    """
+    if position.dtype == jnp.float64:
+        return position @ view[:3, :3].T + view[:3, 3]
+    zero = jnp.any(jnp.isnan(view)).astype(jnp.int32)    # NaN view: garbage either way
+    x, y, z = position[:, 0], position[:, 1], position[:, 2]
+    rows = [((_opaque_mul(x, view[j, 0], zero) + _opaque_mul(y, view[j, 1], zero))
+             + _opaque_mul(z, view[j, 2], zero)) + view[j, 3] for j in range(3)]
+    return jnp.stack(rows, axis=1)
+
+
 def sample_coords(tree: TreeLayout, position, view):
     """Post-perspective coordinates (nx, ny, q) [S, 3] of world points [S, 3].
 
-    ``view`` [4, 4] is the world -> view matrix; computed in the dtype of ``position``.
+    ``view`` [4, 4] is the world -> view matrix; computed in the dtype of ``position``
+    (the view transform: :func:`view_transform`).
     """
-    v = position @ view[:3, :3].T + view[:3, 3]
+    v = view_transform(position, view)
     w = -v[:, 2]
     q = 1 / w
     return jnp.stack([tree.p00 * v[:, 0] * q, tree.p11 * v[:, 1] * q, q], axis=1)
@@ -277,8 +307,11 @@ class Hierarchy:
         counts: per level l = 1..D, the number of existing nodes (int32 scalars, on the
             device until read).
         storage: "full" or "compact".
-        ptr: per level 1..D, int32 [nodes(l)] index into the compact list (-1 if the
-            node does not exist); None for "full".
+        start: per mask level l = 0..D-1, int32 [nodes(l)]: the number of existing
+            level-(l + 1) nodes before node i's first child (exclusive prefix sum of the
+            words' popcounts); None for "full". A child's index in the compact list is
+            ``start[parent] + popcount(word & ((1 << c) - 1))`` (:func:`child_index`), so
+            the per-node pointers (:attr:`ptr`) need not be stored.
         lo, hi: per level 1..D, float [capacity_l, 3] explicit boxes (padded); for
             "full" capacity_l = nodes(l), for "compact" min(nodes(l), samples).
         smin: per level 1..D, float [capacity_l], the minimum bias scale of the node's
@@ -290,7 +323,7 @@ class Hierarchy:
     exists: tuple
     counts: tuple
     storage: str
-    ptr: tuple | None
+    start: tuple | None
     lo: tuple
     hi: tuple
     smin: tuple
@@ -298,6 +331,25 @@ class Hierarchy:
     @property
     def clusters(self) -> int:
         return int(self.counts[-1])
+
+    @functools.cached_property
+    def ptr(self) -> tuple | None:
+        """Per level 1..D, int32 [nodes(l)]: each node's index in the compact list (-1 if
+        absent), the paper's pointer per node; None for "full". Computed on demand (for
+        tests, analysis and the Warp kernels), not by the traversal."""
+        if self.start is None:
+            return None
+        return tuple(_compact_pointers(self.tree, self.masks, level)
+                     for level in range(1, self.tree.levels + 1))
+
+
+def child_index(masks, start, level: int, node):
+    """int32 [...]: compact-list index of the existing level-``level`` nodes ``node``
+    (uint32 [...]) from their parents' mask words and ``start`` (see :class:`Hierarchy`)."""
+    parent = (node >> FANOUT_BITS).astype(jnp.int32)
+    c = node & jnp.uint32(31)
+    below = masks[level - 1][parent] & ((jnp.uint32(1) << c) - jnp.uint32(1))
+    return start[level - 1][parent] + jax.lax.population_count(below).astype(jnp.int32)
 
 
 def _pack_masks(exists_child, nodes_parent: int):
@@ -309,6 +361,7 @@ def _pack_masks(exists_child, nodes_parent: int):
     return jnp.sum(bits * weights, axis=1, dtype=jnp.uint32)
 
 
+@functools.partial(jax.jit, static_argnames=("tree", "level"))
 def _compact_pointers(tree: TreeLayout, masks, level: int):
     """int32 [nodes(level)]: index of each existing level-``level`` node in key order
     (-1 if absent), from its parent's child-mask word: the parent's exclusive prefix
@@ -324,14 +377,36 @@ def _compact_pointers(tree: TreeLayout, masks, level: int):
     return ptr.reshape(-1)[: tree.nodes(level)]
 
 
+ENTRY_CHUNK = 4096       # compact entries per step of the inner-level and padding loops
+
+
+def _pad_live(lo, hi, count):
+    """``pad_box`` applied to rows [0, count) of lo, hi [cap, 3] (cap a multiple of the
+    chunk), in chunks whose trip count follows ``count``; rows past it (absent nodes,
+    never read) keep their unpadded fill."""
+    cap = lo.shape[0]
+    e = min(cap, ENTRY_CHUNK)
+
+    def body(i, carry):
+        olo, ohi = carry
+        plo, phi = pad_box(jax.lax.dynamic_slice_in_dim(lo, i * e, e),
+                           jax.lax.dynamic_slice_in_dim(hi, i * e, e), lo.dtype)
+        return (jax.lax.dynamic_update_slice_in_dim(olo, plo, i * e, 0),
+                jax.lax.dynamic_update_slice_in_dim(ohi, phi, i * e, 0))
+
+    return jax.lax.fori_loop(0, (count + e - 1) // e, body, (lo, hi))
+
+
 @functools.partial(jax.jit, static_argnames=("tree", "storage", "caps"))
 def _build(tree: TreeLayout, storage: str, caps: tuple, keys, valid, coords, scale):
     """Masks, existence, counts, and explicit boxes and smin per level 1..D, in one call.
 
     The leaf level is reduced from the samples (scatter-min / max by cluster), the inner
-    levels from their children's boxes; compact storage finds each entry's parent from
-    the entry's key (an entry's key is scattered from its samples), so no pass over the
-    full tree is needed beyond the masks.
+    levels from their children's boxes. Compact storage finds each entry's list index
+    from its parent's mask word (:func:`child_index`) and carries each entry's key
+    (scattered from its samples) to find its parent; the inner levels and the padding
+    loop over the existing entries only (chunks, trip count from the level's count), so
+    the work follows the number of clusters, not the static list capacity.
     """
     d = tree.levels
     dtype = coords.dtype
@@ -342,10 +417,12 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, keys, valid, coords, sca
     for level in range(d - 1, 0, -1):
         exists.insert(0, jnp.any(exists[0].reshape(tree.nodes(level), -1), axis=1))
     masks = [_pack_masks(exists[level], tree.nodes(level)) for level in range(d)]
-    counts = tuple(jnp.sum(e, dtype=jnp.int32) for e in exists)
+    # existing level-(l + 1) nodes = set bits of the level-l words (a sum over the bool
+    # arrays would read every node of the full tree: ~8 M at 1024^2, ~20 ms)
+    counts = tuple(jnp.sum(jax.lax.population_count(m).astype(jnp.int32)) for m in masks)
     los, his, smins = [None] * d, [None] * d, [None] * d
     if storage == "full":
-        ptrs = None
+        starts = None
         idx = jnp.where(valid, keys.astype(jnp.int32), caps[d - 1])
         cap = caps[d - 1]
         los[d - 1] = jnp.full((cap, 3), big).at[idx].min(coords, mode="drop")
@@ -356,25 +433,41 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, keys, valid, coords, sca
             los[level - 1] = jnp.min(los[level].reshape(n, -1, 3), axis=1)
             his[level - 1] = jnp.max(his[level].reshape(n, -1, 3), axis=1)
             smins[level - 1] = jnp.min(smins[level].reshape(n, -1), axis=1)
+        padded = [pad_box(lo, hi, dtype) for lo, hi in zip(los, his)]
     else:
-        ptrs = [_compact_pointers(tree, masks, level) for level in range(1, d + 1)]
+        starts = []
+        for level in range(d):
+            cnt = jax.lax.population_count(masks[level]).astype(jnp.int32)
+            starts.append(jnp.cumsum(cnt) - cnt)
         cap = caps[d - 1]
-        idx = jnp.where(valid, ptrs[d - 1][keys.astype(jnp.int32)], cap)
+        idx = jnp.where(valid, child_index(masks, starts, d, keys), cap)
         los[d - 1] = jnp.full((cap, 3), big).at[idx].min(coords, mode="drop")
         his[d - 1] = jnp.full((cap, 3), -big).at[idx].max(coords, mode="drop")
         smins[d - 1] = jnp.full((cap,), big).at[idx].min(scale, mode="drop")
         ekey = jnp.zeros(cap, jnp.uint32).at[idx].set(keys, mode="drop")
         for level in range(d - 1, 0, -1):
-            cap = caps[level - 1]
-            ok = jnp.arange(caps[level]) < counts[level]
-            pkey = ekey >> FANOUT_BITS
-            parent = jnp.where(ok, ptrs[level - 1][pkey.astype(jnp.int32)], cap)
-            los[level - 1] = jnp.full((cap, 3), big).at[parent].min(los[level], mode="drop")
-            his[level - 1] = jnp.full((cap, 3), -big).at[parent].max(his[level], mode="drop")
-            smins[level - 1] = jnp.full((cap,), big).at[parent].min(smins[level], mode="drop")
-            ekey = jnp.zeros(cap, jnp.uint32).at[parent].set(pkey, mode="drop")
-    padded = [pad_box(lo, hi, dtype) for lo, hi in zip(los, his)]
-    return (tuple(masks), tuple(exists), counts, None if ptrs is None else tuple(ptrs),
+            cap, e = caps[level - 1], min(caps[level], ENTRY_CHUNK)
+
+            def body(i, carry, level=level, e=e, cap=cap, ekey=ekey):
+                lo, hi, sm, key = carry
+                ok = i * e + jnp.arange(e) < counts[level]
+                ck = jax.lax.dynamic_slice_in_dim(ekey, i * e, e)
+                pkey = ck >> FANOUT_BITS
+                parent = jnp.where(ok, child_index(masks, starts, level, pkey), cap)
+                lo = lo.at[parent].min(jax.lax.dynamic_slice_in_dim(los[level], i * e, e),
+                                       mode="drop")
+                hi = hi.at[parent].max(jax.lax.dynamic_slice_in_dim(his[level], i * e, e),
+                                       mode="drop")
+                sm = sm.at[parent].min(jax.lax.dynamic_slice_in_dim(smins[level], i * e, e),
+                                       mode="drop")
+                return lo, hi, sm, key.at[parent].set(pkey, mode="drop")
+
+            los[level - 1], his[level - 1], smins[level - 1], ekey = jax.lax.fori_loop(
+                0, (counts[level] + e - 1) // e, body,
+                (jnp.full((cap, 3), big), jnp.full((cap, 3), -big), jnp.full((cap,), big),
+                 jnp.zeros(cap, jnp.uint32)))
+        padded = [_pad_live(lo, hi, n) for lo, hi, n in zip(los, his, counts)]
+    return (tuple(masks), tuple(exists), counts, None if starts is None else tuple(starts),
             tuple(p[0] for p in padded), tuple(p[1] for p in padded), tuple(smins))
 
 
@@ -386,16 +479,18 @@ def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact"
         keys: uint32 [S] sample keys; valid: bool [S] (False for padding rows).
         coords: [S, 3] post-perspective coordinates; scale: [S] bias scale.
         storage: "full" or "compact" (how explicit boxes are stored). Compact lists are
-            sized min(nodes, samples) per level (a static bound: no count is read back).
+            sized min(nodes, samples rounded up to ``ENTRY_CHUNK``) per level (a static
+            bound: no count is read back).
     """
     if storage == "full":
         caps = tuple(tree.nodes(level) for level in range(1, tree.levels + 1))
     else:
-        caps = tuple(min(tree.nodes(level), keys.shape[0])
-                     for level in range(1, tree.levels + 1))
-    masks, exists, counts, ptr, lo, hi, smin = _build(tree, storage, caps, keys, valid,
-                                                      coords, scale)
-    return Hierarchy(tree, masks, exists, counts, storage, ptr, lo, hi, smin)
+        # a multiple of the entry chunk (node counts are powers of two)
+        s = -(-keys.shape[0] // ENTRY_CHUNK) * ENTRY_CHUNK
+        caps = tuple(min(tree.nodes(level), s) for level in range(1, tree.levels + 1))
+    masks, exists, counts, start, lo, hi, smin = _build(tree, storage, caps, keys, valid,
+                                                        coords, scale)
+    return Hierarchy(tree, masks, exists, counts, storage, start, lo, hi, smin)
 
 
 def masks_numpy(tree: TreeLayout, keys: np.ndarray) -> list[np.ndarray]:

@@ -137,8 +137,11 @@ def _test_children(cfg, level, a, tri, node, valid, accepted):
     child_i = child.astype(jnp.int32)
     if storage == "full":
         idx = off["boxes"][level] + child_i
-    else:
-        idx = off["boxes"][level] + jnp.maximum(a["ptr"][off["ptr"][level] + child_i], 0)
+    else:                       # compact: the parent's start plus the set bits below c
+        below = word[:, None] & ((jnp.uint32(1) << c[None, :]) - jnp.uint32(1))
+        rank = jax.lax.population_count(below).astype(jnp.int32)
+        idx = off["boxes"][level] + jnp.where(
+            exists, a["start"][off["masks"][level] + node_i][:, None] + rank, 0)
     elo, ehi, sm = a["lo"][idx], a["hi"][idx], a["smin"][idx]
     if not all(axes):
         ext = (off["shift"][level], off["ex"][level].astype(dtype),
@@ -386,24 +389,21 @@ def level_offsets(tree: ch.TreeLayout) -> tuple[list[int], int]:
 
 def flat_hierarchy(hier: ch.Hierarchy, tree: ch.TreeLayout, dtype) -> dict:
     """The hierarchy as concatenated arrays plus per-level offset tables, so one loop
-    body can serve every level (``off``: masks / accepted rows, pointers and boxes of the
+    body can serve every level (``off``: masks / accepted rows, start counts and boxes of the
     child level, and the child level's implicit extents)."""
     d = tree.levels
     rows, _ = level_offsets(tree)
-    box_off, ptr_off, b, p = [], [], 0, 0
+    box_off, b = [], 0
     for level in range(d):
         box_off.append(b)
         b += hier.lo[level].shape[0]
-        ptr_off.append(p)
-        p += tree.nodes(level + 1) if hier.ptr is not None else 0
     ext = [ch.level_extents(tree, level + 1) for level in range(d)]
     off = dict(masks=jnp.asarray(rows, jnp.int32), boxes=jnp.asarray(box_off, jnp.int32),
-               ptr=jnp.asarray(ptr_off, jnp.int32),
                shift=jnp.asarray([e[0] for e in ext], jnp.uint32),
                ex=jnp.asarray([e[1] for e in ext], dtype), ey=jnp.asarray([e[2] for e in ext], dtype),
                ez=jnp.asarray([e[3] for e in ext], jnp.int32))
     return dict(masks=jnp.concatenate(hier.masks),
-                ptr=None if hier.ptr is None else jnp.concatenate(hier.ptr),
+                start=None if hier.start is None else jnp.concatenate(hier.start),
                 lo=jnp.concatenate(hier.lo), hi=jnp.concatenate(hier.hi),
                 smin=jnp.concatenate(hier.smin), off=off)
 
