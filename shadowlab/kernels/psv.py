@@ -465,26 +465,21 @@ METHODS = {"psv": ("stack", False), "d_psv": ("stack", True),
 def prepare(scene, gbuf, light, options: dict):
     """The inputs both versions share: samples, build input, per-sample scale and key.
 
-    Exactly the steps of ``methods.psv.build_tree`` before the build (culling, bias,
-    margin, insertion order), so the kernel build sees the same ``BuildInput``.
+    The build input is ``methods.psv.build_input`` itself (culling, bias, margin,
+    insertion order), so the kernel build sees the JAX build's ``BuildInput``.
     """
     from ..methods import psv as psvm
     from ..methods import top_tree as tt
-    from ..methods.common import bias_terms, bucket, cap_bias, view_samples
+    from ..methods.common import view_samples
     from ..scene.view import hard_light
 
-    dtype = np.float32
     samples = view_samples(gbuf, light)
     light_h = hard_light(light).homogeneous
-    planes, keep, _ = psvm.casters(scene, light, gbuf.camera, dtype, options["face_culling"],
-                                   options["frustum_culling"])
-    eps = cap_bias(scene, options["shadow_eps"])
-    scale, bound = bias_terms(samples, light_h, planes, eps, options["bias"])
-    idx = np.flatnonzero(keep)
-    margin = psvm.classification_margin(scene, light, dtype, options["classify_ulps"])
-    inp = tt.make_input(scene.triangles[idx], planes[idx], bound[idx], idx.astype(np.int32),
-                        light_h, dtype, margin, eps, options["order"], options["seed"],
-                        bucket(max(len(idx), 1), minimum=256))
+    inp, scale, _ = psvm.build_input(
+        scene, light, gbuf.camera, samples, dtype=np.float32,
+        shadow_eps=options["shadow_eps"], bias=options["bias"], order=options["order"],
+        seed=options["seed"], classify_ulps=options["classify_ulps"],
+        face_culling=options["face_culling"], frustum_culling=options["frustum_culling"])
     key = tt.light_key(samples.position, light_h)
     return samples, inp, scale, key, light_h
 

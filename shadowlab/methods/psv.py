@@ -93,13 +93,14 @@ def classification_margin(scene, light, dtype, ulps: float) -> float:
     return float(ulps) * float(np.finfo(dtype).eps) * a
 
 
-def build_tree(scene, light, camera, samples, *, dtype, shadow_eps, bias, order, seed, wedge,
-               classify_ulps, face_culling="none", frustum_culling=False, build="parallel",
-               timer=None):
-    """Cull, order and build; returns (TopTree, samples' scale [S] (float64), culled).
+def build_input(scene, light, camera, samples, *, dtype, shadow_eps, bias, order, seed,
+                classify_ulps, face_culling="none", frustum_culling=False, timer=None):
+    """Everything before the build: cull, bias terms, margin, order and pad the casters.
 
-    Host stages are timed as ``casters`` (planes, culling, bias terms) and
-    ``build_setup`` (keys, order, padding); the JAX build as ``build``.
+    Returns (``top_tree.BuildInput``, samples' scale [S] (float64), culled counts). The
+    Warp kernels (``kernels/psv.prepare``) build from this same input. Host stages are
+    timed as ``casters`` (planes, culling, bias terms) and ``build_setup`` (keys, order,
+    padding).
     """
     timer = timer if timer is not None else StageTimer()
     light_h = hard_light(light).homogeneous
@@ -110,11 +111,23 @@ def build_tree(scene, light, camera, samples, *, dtype, shadow_eps, bias, order,
         scale, bound = bias_terms(samples, light_h, planes, eps, bias)
         idx = np.flatnonzero(keep)
         margin = classification_margin(scene, light, dtype, classify_ulps)
-    cap_extra = eps
     with timer.stage("build_setup"):
         inp = tt.make_input(scene.triangles[idx], planes[idx], bound[idx], idx.astype(np.int32),
-                            light_h, dtype, margin, cap_extra, order, seed,
+                            light_h, dtype, margin, eps, order, seed,
                             bucket(max(len(idx), 1), minimum=256))
+    return inp, scale, culled
+
+
+def build_tree(scene, light, camera, samples, *, dtype, shadow_eps, bias, order, seed, wedge,
+               classify_ulps, face_culling="none", frustum_culling=False, build="parallel",
+               timer=None):
+    """:func:`build_input`, then the build; returns (TopTree, samples' scale [S] (float64),
+    culled). The JAX build is timed as ``build`` (and ``build_compact``)."""
+    timer = timer if timer is not None else StageTimer()
+    inp, scale, culled = build_input(
+        scene, light, camera, samples, dtype=dtype, shadow_eps=shadow_eps, bias=bias,
+        order=order, seed=seed, classify_ulps=classify_ulps, face_culling=face_culling,
+        frustum_culling=frustum_culling, timer=timer)
     if build == "sequential":
         with timer.stage("build"):
             tree = tt.build_sequential(inp, wedge)
