@@ -229,7 +229,8 @@ def make_input(tri: np.ndarray, planes: np.ndarray, bound: np.ndarray, tri_index
     out_b = np.full(c, -np.inf, dtype)
     out_t = np.full(c, -1, np.int32)
     out_p[:k] = planes[perm]
-    out_v[:k] = tri[perm]
+    tp = tri[perm]                    # float64 [K, 3, 3], gathered once
+    out_v[:k] = tp
     # Depth keys rounded down (conservative for the "closer than the subtree" skip).
     kk = key[perm] - margin
     kd = kk.astype(dtype)
@@ -238,7 +239,7 @@ def make_input(tri: np.ndarray, planes: np.ndarray, bound: np.ndarray, tri_index
     if light_h[3] != 0:
         d = key[perm]                 # the point-light key is the triangle's distance
         out_id[:k] = 1.0 / np.maximum(d, 1e-30)
-        vd = np.linalg.norm(tri[perm] - light_h[:3], axis=-1)
+        vd = np.sqrt(sum((tp[..., i] - light_h[i]) ** 2 for i in range(3)))
         out_iv[:k] = 1.0 / np.maximum(vd, 1e-30)
     out_b[:k] = bound[perm]
     out_t[:k] = tri_index[perm]
