@@ -207,3 +207,74 @@ def test_float64_is_refused():
     scene, light, gbuf, _ = _scene("soup")
     with pytest.raises(ValueError, match="float32"):
         kc.run(scene, gbuf, light, precision="float64")
+
+
+@wp.kernel
+def _child_codes(word: wp.array(dtype=wp.uint32), g: wp.array3d(dtype=wp.float32),
+                 tol: wp.array2d(dtype=wp.float32), bound: wp.array(dtype=wp.float32),
+                 lo: wp.array2d(dtype=wp.float32), hi: wp.array2d(dtype=wp.float32),
+                 smin: wp.array(dtype=wp.float32), i32: wp.array(dtype=wp.int32),
+                 f32: wp.array(dtype=wp.float32), codes: wp.array2d(dtype=wp.int32)):
+    """Job j (triangle j, node j of level 0, full storage, explicit boxes), lane l."""
+    j, lane = wp.tid()
+    child = (wp.uint32(j) << wp.uint32(5)) | wp.uint32(lane)
+    codes[j, lane] = kc._test_child(word[j], wp.uint32(1) << wp.uint32(lane), j, 0, child, 5, 1,
+                                    i32, wp.vec3i(1, 1, 1), f32, f32, i32, 0, i32, i32, i32, lo,
+                                    hi, smin, g, tol, bound, 1)
+
+
+def test_node_test_rounds_as_jax_on_ties():
+    """The kernels' node test against the JAX one on boxes placed exactly on a plane's
+    rejection threshold (the threshold is the JAX order's value, so any other rounding
+    of the box extremes flips the decision): every child's code is equal."""
+    import jax.numpy as jnp
+
+    from shadowlab.methods.clustered_ptsv import _test_children
+
+    rng = np.random.default_rng(7)
+    n, f32 = 512, np.float32
+    g = rng.uniform(-1, 1, (n, 7, 4)).astype(f32)
+    lo = rng.uniform(-1, 1, (n * 32, 3)).astype(f32)
+    hi = (lo + rng.uniform(0, 0.5, (n * 32, 3))).astype(f32)
+    lo[:, 2], hi[:, 2] = np.abs(lo[:, 2]) + f32(0.1), np.abs(hi[:, 2]) + f32(0.7)
+    smin = rng.uniform(0.5, 2, n * 32).astype(f32)
+    bound = rng.uniform(-1, 1, n).astype(f32)
+    word = np.full(n, 0xFFFFFFFF, np.uint32)
+    word[::7] = rng.integers(0, 2**32, len(word[::7]), dtype=np.uint32)
+
+    def extreme(t, r, c, pick, order):          # float32, axes summed in ``order``
+        b = t * 32 + c
+        v = [pick(g[t, r, a] * lo[b, a], g[t, r, a] * hi[b, a]) for a in range(3)]
+        return ((v[order[0]] + v[order[1]]) + v[order[2]]) + g[t, r, 3]
+
+    tol = np.full((n, 7), 1e6, f32)               # no row decides ...
+    flips = 0
+    for t in range(n):                            # ... but one, exactly at its threshold
+        r, c = int(rng.choice([0, 1, 2, 3, 4, 5, 6])), int(rng.integers(32))
+        if r == 3:                                # cap reject: vmin - tol > 0
+            tol[t, r] = extreme(t, r, c, np.minimum, (0, 2, 1))
+            flips += extreme(t, r, c, np.minimum, (0, 1, 2)) - tol[t, r] > 0
+        else:                                     # edge / extra reject: vmax < -tol
+            tol[t, r] = -extreme(t, r, c, np.maximum, (0, 2, 1))
+            flips += extreme(t, r, c, np.maximum, (0, 1, 2)) < -tol[t, r]
+    assert flips > 10                             # the x + y + q order would differ here
+
+    cfg = {"axes": (True, True, True), "storage": "full", "extra": True, "prune": False}
+    a = {"g": jnp.asarray(g), "tol": jnp.asarray(tol), "bound": jnp.asarray(bound),
+         "masks": jnp.asarray(word), "lo": jnp.asarray(lo), "hi": jnp.asarray(hi),
+         "smin": jnp.asarray(smin),
+         "off": {"masks": jnp.zeros(1, jnp.int32), "boxes": jnp.zeros(1, jnp.int32)}}
+    idx = jnp.arange(n, dtype=jnp.int32)
+    exists, accept, reject, extra, inter = (np.asarray(x) for x in _test_children(
+        cfg, 0, a, idx, idx.astype(jnp.uint32), jnp.ones(n, bool), jnp.zeros((1, 32), bool)))
+    want = np.select([~exists, accept, extra, reject, inter], [4, 0, 2, 1, 3], -1)
+    assert (want >= 0).all() and {1, 2, 3, 4} <= set(np.unique(want))
+
+    dev = kc.init()
+    arr = lambda x: kc._arr(x, x.dtype, dev)
+    codes = wp.zeros((n, 32), dtype=wp.int32, device=dev)
+    wp.launch(_child_codes, dim=(n, 32), device=dev, inputs=[
+        arr(word), arr(g), arr(tol), arr(bound), arr(lo), arr(hi), arr(smin),
+        wp.zeros(1, dtype=wp.int32, device=dev), wp.zeros(1, dtype=wp.float32, device=dev),
+        codes])
+    np.testing.assert_array_equal(codes.numpy(), want)

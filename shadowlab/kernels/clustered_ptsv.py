@@ -403,6 +403,21 @@ def pad_boxes(lo: wp.array2d(dtype=wp.float32), hi: wp.array2d(dtype=wp.float32)
 # --------------------------------------------------------------------------- traversal
 
 @wp.func
+def _extremes(g: wp.array3d(dtype=wp.float32), t: wp.int32, r: wp.int32, blo: wp.vec3f,
+              bhi: wp.vec3f):
+    """(max, min) of row r of triangle t's g over the box: the extreme corner per axis,
+    summed as ``clustered_ptsv._test_children`` does, (x + q) + y, then the constant."""
+    mx = wp.vec3f()
+    mn = wp.vec3f()
+    for a in range(3):
+        p = g[t, r, a] * blo[a]
+        q = g[t, r, a] * bhi[a]
+        mx[a] = wp.max(p, q)
+        mn[a] = wp.min(p, q)
+    return wp.vec2f(((mx[0] + mx[2]) + mx[1]) + g[t, r, 3], ((mn[0] + mn[2]) + mn[1]) + g[t, r, 3])
+
+
+@wp.func
 def _classify(t: wp.int32, level: wp.int32, child: wp.uint32, key_bits: wp.int32,
               levels: wp.int32, layout: wp.array(dtype=wp.int32), ax: wp.vec3i,
               imp_lo: wp.array(dtype=wp.float32), imp_hi: wp.array(dtype=wp.float32),
@@ -414,7 +429,7 @@ def _classify(t: wp.int32, level: wp.int32, child: wp.uint32, key_bits: wp.int32
               extra: wp.int32):
     """Child ``child`` (a node of ``level + 1``) against triangle t's volume: 0 trivial
     accept, 1 trivial reject (volume planes), 2 reject by an extra plane, 3 intersect.
-    The expressions of ``clustered_ptsv._expand``, rounded the same way."""
+    The expressions of ``clustered_ptsv._test_children``, rounded the same way."""
     bl = level                                        # box level of the child (level + 1 - 1)
     i = _box_index(storage, ptr, poff, boff, bl, child)
     blo = wp.vec3f(lo[i, 0], lo[i, 1], lo[i, 2])
@@ -439,19 +454,9 @@ def _classify(t: wp.int32, level: wp.int32, child: wp.uint32, key_bits: wp.int32
     rej = bool(False)  # noqa: UP018 (a dynamic Warp variable)
     acc_edge = bool(True)  # noqa: UP018 (a dynamic Warp variable)
     for r in range(4):
-        s_hi = wp.float32(0.0)
-        s_lo = wp.float32(0.0)
-        for a in range(3):
-            p = g[t, r, a] * blo[a]
-            q = g[t, r, a] * bhi[a]
-            if a == 0:
-                s_hi = wp.max(p, q)
-                s_lo = wp.min(p, q)
-            else:
-                s_hi = s_hi + wp.max(p, q)
-                s_lo = s_lo + wp.min(p, q)
-        vmax[r] = s_hi + g[t, r, 3]
-        vmin[r] = s_lo + g[t, r, 3]
+        e = _extremes(g, t, r, blo, bhi)
+        vmax[r] = e[0]
+        vmin[r] = e[1]
     for r in range(3):
         if vmax[r] < -tol[t, r]:
             rej = True
@@ -473,15 +478,7 @@ def _classify(t: wp.int32, level: wp.int32, child: wp.uint32, key_bits: wp.int32
             code = 0
         elif extra != 0:
             for r in range(4, 7):
-                s_hi = wp.float32(0.0)
-                for a in range(3):
-                    p = g[t, r, a] * blo[a]
-                    q = g[t, r, a] * bhi[a]
-                    if a == 0:
-                        s_hi = wp.max(p, q)
-                    else:
-                        s_hi = s_hi + wp.max(p, q)
-                if s_hi + g[t, r, 3] < -tol[t, r]:
+                if _extremes(g, t, r, blo, bhi)[0] < -tol[t, r]:
                     code = 2
     return code
 
