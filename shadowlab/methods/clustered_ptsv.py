@@ -484,18 +484,6 @@ def traverse(timer, shape, params, opts, a, casters: np.ndarray, accepted, tile_
 
 
 @functools.partial(jax.jit, static_argnames=("shape",))
-def _tile_arrays(shape, table, pos, scale, keys):
-    """Tile-major copies of the samples (x, y, z, scale, key, valid: [tiles, P] each), so
-    a leaf job gathers its tile's samples as rows."""
-    s = pos.shape[0]
-    valid = table < s
-    sc = jnp.minimum(table, s - 1)
-    p = pos[sc]
-    return dict(tile_x=p[..., 0], tile_y=p[..., 1], tile_z=p[..., 2], tile_scale=scale[sc],
-                tile_key=keys[sc], tile_valid=valid)
-
-
-@functools.partial(jax.jit, static_argnames=("shape",))
 def _finish(shape, keys, valid, slot, accepted, tile_shadow, tile_tests):
     """Per sample: shadowed by a leaf test or inside a trivially accepted node (merge),
     trivially-accepted-only, and test-and-sets. ``accepted`` is bool [rows, 32] (a row
@@ -514,23 +502,37 @@ def _finish(shape, keys, valid, slot, accepted, tile_shadow, tile_tests):
 # --------------------------------------------------------------------------- pipeline
 
 @functools.partial(jax.jit, static_argnames=("shape",))
-def _sample_stage(shape, params, pos, view, px, py, count):
-    """Coordinates [S, 3], keys [S] uint32, saturated [S] bool, valid [S] bool."""
+def _sample_stage(shape, params, pos, scale, view, index, count):
+    """Per sample (all [S], S the sample capacity; rows >= count are padding): coordinates
+    [S, 3], keys (uint32), saturated, valid, and its slot in the tile-major arrays; the
+    tile-major copies of the samples (x, y, z, bias scale, key, valid: [tiles, P] each, P
+    pixels per leaf tile), so a leaf job gathers its tile's samples as rows; and the
+    largest q and |world coordinate| of the samples (the tolerances' qmax and pmax, 1 if
+    there is no sample). ``index``: int32 [S] flat pixel index."""
     tree = _with_params(shape, params)
+    s = pos.shape[0]
+    valid = jnp.arange(s) < count
+    px, py = index % tree.width, index // tree.width
     coords = ch.sample_coords(tree, pos, view)
-    valid = jnp.arange(pos.shape[0]) < count
     coords = jnp.where(valid[:, None], coords, coords[0])
     keys, saturated = ch.sample_keys(tree, px, py, coords)
-    return coords, keys, saturated & valid, valid
-
-
-def tile_table(tree: ch.TreeLayout, px: np.ndarray, py: np.ndarray, capacity: int) -> np.ndarray:
-    """int32 [tiles, tile_pixels]: the sample id at each pixel of each leaf tile
-    (``capacity`` = no sample). px, py: int [S] pixel coordinates of the samples."""
     tw, th = tree.tile
-    table = np.full((tree.tiles_x * tree.tiles_y, tw * th), capacity, np.int32)
-    table[(py // th) * tree.tiles_x + px // tw, (py % th) * tw + px % tw] = np.arange(len(px))
-    return table
+    tiles = tree.tiles_x * tree.tiles_y
+    tile = (py // th) * tree.tiles_x + px // tw
+    within = (py % th) * tw + px % tw
+    slot = jnp.where(valid, tile * tree.tile_pixels + within, 0)
+    table = jnp.full((tiles, tree.tile_pixels), s, jnp.int32).at[
+        jnp.where(valid, tile, tiles), within].set(jnp.arange(s, dtype=jnp.int32), mode="drop")
+    sc = jnp.minimum(table, s - 1)
+    p = pos[sc]
+    tile_arrays = dict(tile_x=p[..., 0], tile_y=p[..., 1], tile_z=p[..., 2],
+                       tile_scale=scale[sc], tile_key=keys[sc], tile_valid=table < s)
+    # max |x| of the rounded positions = the rounded max |x| (rounding is monotonic)
+    qmax = jnp.where(count > 0, jnp.max(jnp.where(valid, coords[:, 2], 0)), 1)
+    pmax = jnp.where(count > 0, jnp.max(jnp.abs(pos)), 1)
+    return dict(coords=coords, keys=keys, saturated=saturated & valid, valid=valid, slot=slot,
+                table=table, tiles=tile_arrays, qmax=qmax.astype(pos.dtype),
+                pmax=pmax.astype(pos.dtype))
 
 
 def top_jobs(iterations: np.ndarray, k: int = TOP_JOBS) -> np.ndarray:
@@ -589,32 +591,22 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         shape = shape_tree(tree)
         params = jnp.asarray(tree_params(tree, dtype))
         with timer.stage("build"):
-            px = (samples.index % w).astype(np.int32)
-            py = (samples.index // w).astype(np.int32)
-            pxp = np.zeros(s_cap, np.int32)
-            pyp = np.zeros(s_cap, np.int32)
-            pxp[: samples.count], pyp[: samples.count] = px, py
+            index = np.zeros(s_cap, np.int32)
+            index[: samples.count] = samples.index
             view = jnp.asarray(camera.view_matrix().astype(dtype))
-            coords, keys, saturated, svalid = _sample_stage(
-                shape, params, pos, view, jnp.asarray(pxp), jnp.asarray(pyp), samples.count)
+            sst = _sample_stage(shape, params, pos, scale_d, view, jnp.asarray(index),
+                                samples.count)
+            coords, keys, svalid = sst["coords"], sst["keys"], sst["valid"]
             hier = dataclasses.replace(ch.build(shape, keys, svalid, coords, scale_d, storage),
                                        tree=tree)
-            table = tile_table(tree, px, py, s_cap)
-            tiles = _tile_arrays(shape, jnp.asarray(table), pos, scale_d, keys)
-            tw, th = tree.tile
-            slot = np.zeros(s_cap, np.int32)
-            slot[: samples.count] = (((py // th) * tree.tiles_x + px // tw) * (tw * th)
-                                     + (py % th) * tw + px % tw)
-            slot = jnp.asarray(slot)
+            tiles, table, slot = sst["tiles"], sst["table"], sst["slot"]
             jax.block_until_ready((hier.lo, tiles))
         with timer.stage("setup"):
-            qmax = float(jnp.max(jnp.where(svalid, coords[:, 2], 0))) if samples.count else 1.0
-            pmax = float(np.abs(samples.position).max()) if samples.count else 1.0
             extra = ("silhouette" if kind == "ptsv" else "culling") if culling_planes else "none"
             inv_view = jnp.asarray(np.linalg.inv(camera.view_matrix()).astype(dtype))
-            g, tol = post_perspective_planes(planes.reshape(-1, 4, 4), inv_view,
-                                             jnp.asarray(qmax, dtype), jnp.asarray(pmax, dtype),
-                                             extra=extra, p00=tree.p00, p11=tree.p11)
+            g, tol = post_perspective_planes(planes.reshape(-1, 4, 4), inv_view, sst["qmax"],
+                                             sst["pmax"], extra=extra, p00=tree.p00,
+                                             p11=tree.p11)
             jax.block_until_ready(g)
         levels = tree.levels
         level_l = min(max(1, expand_level), levels)
@@ -665,7 +657,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         "hierarchy_bytes": int(memory["mask_bytes"] + (
             memory["pointer_bytes"] + 24 * sum(counts_h) if storage == "compact"
             else memory["full_bounds_bytes"])),
-        "saturated_samples": int(np.asarray(saturated).sum()),
+        "saturated_samples": int(np.asarray(sst["saturated"]).sum()),
         "shadowed": int(shadow_all.sum()),
         "lit": int(lit.sum()),
     }
