@@ -28,8 +28,8 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("shadowed", "int", "samples found inside at least one shadow volume"),
     Counter("lit", "int", "pixels reported lit"),
     # per-triangle shadow volumes over a hierarchy (clustered_ptsv, ptsv)
-    Counter("front_face_culled", "int", "light-facing triangles of closed objects dropped by "
-            "front-face culling"),
+    Counter("front_face_culled", "int", "triangles of closed objects dropped by face culling "
+            "(the side given by the cull_side option)"),
     Counter("node_tests", "int", "existing child nodes tested against a shadow volume"),
     Counter("trivial_accepts", "int", "nodes found entirely inside a shadow volume"),
     Counter("trivial_rejects", "int", "nodes found entirely outside a shadow volume (by a "

@@ -1022,7 +1022,7 @@ def prepare(scene, gbuf, light, o: dict, device: str | None = None) -> dict:
     bound = np.where(st["valid"], bound, -np.inf).astype(f32)
     culled = np.zeros(scene.num_triangles, bool)
     if o["front_face_culling"]:
-        culled = cm.front_face_culled(scene, light_h)
+        culled = cm.front_face_culled(scene, light_h, o.get("cull_side", "averted"))
     casters = np.flatnonzero(st["valid"] & ~culled).astype(np.int32)
     tm["setup"] = time.perf_counter() - t0
     return dict(timings=tm, samples=samples, tree=tree, px=px, py=py, pos=pos, coords=coords, keys=keys,

@@ -66,14 +66,30 @@ TOP_JOBS = 1024
 
 # --------------------------------------------------------------------------- setup
 
-def front_face_culled(scene, light_h: np.ndarray) -> np.ndarray:
-    """bool [T]: triangles of closed objects whose outward side faces the light.
+CULL_SIDES = ("averted", "facing")
 
-    For a closed, consistently oriented object every blocked segment from a point
-    outside it to the light leaves it through a triangle facing away from the light,
-    so those suffice. The outward side is found from the sign of the object's signed
-    volume; open objects keep all their triangles (culling them would lose shadows).
+
+def front_face_culled(scene, light_h: np.ndarray, side: str = "averted") -> np.ndarray:
+    """bool [T]: the triangles of closed objects that culling drops.
+
+    ``side="facing"`` (the papers' front-face culling): drop the triangles whose outward
+    side faces the light. For a closed, consistently oriented object, a blocked segment
+    from a point *outside* it to the light enters it through a triangle facing away from
+    the light, so those suffice. With the receiver bias the segment starts eps above the
+    receiver's tangent plane; when that start lies inside a closed object (the receiver
+    is within eps below it: contacts, overhangs), the segment only leaves it, through a
+    light-facing triangle, and the shadow is lost (measured: docs/clustered_ptsv.md).
+
+    ``side="averted"`` (default): drop the triangles facing away from the light. The last
+    crossing of a closed object's surface on a segment that ends at a light outside it
+    always leaves the object through a light-facing triangle, wherever the segment
+    starts, so this is exact with either bias.
+
+    The outward side comes from the sign of the object's signed volume; open objects keep
+    all their triangles (culling them would lose shadows).
     """
+    if side not in CULL_SIDES:
+        raise ValueError(f"side must be one of {CULL_SIDES}")
     report = scene.report()
     closed = np.array([o.closed for o in report.objects] +
                       [False] * (scene.num_objects - len(report.objects)))
@@ -84,7 +100,7 @@ def front_face_culled(scene, light_h: np.ndarray) -> np.ndarray:
     orient = np.sign(np.bincount(scene.object_id, weights=vol6, minlength=scene.num_objects))
     orient = np.where(orient == 0, 1.0, orient)
     facing = np.einsum("ij,ij->i", n, light_h[:3] - light_h[3] * v0) * orient[scene.object_id]
-    return closed[scene.object_id] & (facing > 0)
+    return closed[scene.object_id] & (facing > 0 if side == "facing" else facing < 0)
 
 
 # --------------------------------------------------------------------------- traversal
@@ -547,7 +563,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                          bias: str, bounds: str = "explicit", storage: str = "compact",
                          culling_planes: bool = True, passes: int = 1, expand_level: int = 3,
                          prune: bool = False, wave: int = 512, front_face_culling: bool = False,
-                         leaf_samples: str = "tile", z_bits: int = 0,
+                         cull_side: str = "averted", leaf_samples: str = "tile", z_bits: int = 0,
                          depth_slices: str = "clamp", method: str = "clustered_ptsv",
                          options: dict | None = None):
     """The whole pipeline for ``kind`` = "cluster" (2014) or "ptsv" (2011).
@@ -583,7 +599,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             bound = np.where(valid, bound, -np.inf).astype(dtype)
             culled = np.zeros(t_cap, bool)
             if front_face_culling:
-                culled[: scene.num_triangles] = front_face_culled(scene, light_h)
+                culled[: scene.num_triangles] = front_face_culled(scene, light_h,
+                                                                  cull_side)
             casters = np.flatnonzero(valid & ~culled).astype(np.int32)
             s_cap = bucket(samples.count, minimum=MIN_SAMPLES)
             pos = jnp.asarray(samples.padded_position(dtype, s_cap))
@@ -685,8 +702,12 @@ COMMON_TRAVERSAL_OPTIONS = {
                     "on the documented job order)", allowed=BOOL),
     "wave": Option(512, "jobs per wave when pruning (accepts of earlier waves are visible to "
                    "later ones)", kind=int, minimum=1),
-    "front_face_culling": Option(False, "drop light-facing triangles of closed objects",
-                                 allowed=BOOL),
+    "front_face_culling": Option(False, "drop one side of closed objects' triangles (which: "
+                                 "cull_side)", allowed=BOOL),
+    "cull_side": Option("averted", "with front_face_culling: drop the triangles facing away "
+                        "from the light ('averted': exact with the bias) or facing it "
+                        "('facing': the papers' choice; loses shadows where a receiver is "
+                        "within the bias below a closed object)", allowed=CULL_SIDES),
     "leaf_samples": Option("tile", "at a leaf test every sample of the tile (paper) or only "
                            "the samples of that cluster", allowed=("tile", "cluster")),
 }
