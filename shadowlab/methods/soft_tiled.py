@@ -31,9 +31,11 @@ The light: a sun (direction, angular radius r; disk scale s = tan r) or a sphere
 angular radius asin(R / D) around the direction to its centre, in the plane at depth
 D - R^2 / D along that direction; exactly what ``raycast.soft_reference`` samples.
 
-Vectorized JAX: tiles are grouped by the power of two of their list's chunk count; each
-group runs one jitted loop over chunks of ``chunk`` list entries, vectorized over
-(tiles x 256 pixels), unrolled over the chunk's triangles. See docs/soft_tiled.md.
+Vectorized JAX: active tiles, sorted by list length, run in batches of 32 (one compiled
+shape), vectorized over (tiles x 256 pixels). With ``defer`` (default) a batch first runs
+only the per-pixel quick reject over its lists, recording the passing entries as bits,
+then rasterizes just those (max over the batch's pixels, per round of 256 entries); a
+pixel whose grid is empty stops. See docs/soft_tiled.md.
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ from .result import ShadowResult
 TILE = 16
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
 GOLDEN_ITERS = 16
+DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)
 
 
 # ------------------------------------------------------------------ clusters (per scene)
@@ -386,9 +389,11 @@ def frustum_planes(camera, zmin: float, zmax: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=None)
 def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, horizon: bool,
-                 mode: str):
+                 mode: str, defer: bool = True):
     g = sd.grid(grid_name)
     disk = [np.uint32(wd) for wd in g.disk_mask()]
+    defer = defer and mode == "bitmask"
+    words_per_round = DEFER_WORDS
 
     @jax.jit
     def run(tiles, offsets, counts, trips, pix, tri, tri_id, entries, entry_half, eps):
@@ -419,70 +424,194 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             hgt = jnp.clip(nrm[2] / jnp.maximum(ln, 1e-30), -1.0, 1.0)
             blocked0 = (jnp.arccos(hgt) - hgt * jnp.sqrt(1 - hgt * hgt)) / math.pi
         zero = jnp.zeros(shape, jnp.int32)
+        tri_rows = tri.T                                                   # [Tg, 9]
 
-        def body(j, state):
-            words, blocked, tests, rast, clamp = state
+        def light_frame(vx):
+            """Vertices (9 arrays, broadcastable to [G, 256]) -> d: 3 light-frame tuples."""
+            d = []
+            for v in range(3):
+                dv = [vx[3 * v + i] - pos[i] for i in range(3)]
+                d.append(tuple(dv[0] * fr[3 * c] + dv[1] * fr[3 * c + 1]
+                               + dv[2] * fr[3 * c + 2] for c in range(3)))
+            return d
+
+        def projected(d):
+            q = [sd.project_paper_list(d[v][0], d[v][1], d[v][2], s) for v in range(3)]
+            return [q[v][0] for v in range(3)], [q[v][1] for v in range(3)]
+
+        def quick_reject(d, qx, qy):
+            """bool [G, 256]: the pair passes the per-pixel quick reject; near: clamp acts."""
+            z = [d[v][2] for v in range(3)]
+            hgt = [sd._dot(d[v], nrm) for v in range(3)]
+            quick = ~((z[0] <= 0) & (z[1] <= 0) & (z[2] <= 0))
+            quick &= ~((hgt[0] <= eps) & (hgt[1] <= eps) & (hgt[2] <= eps))
+            if sphere:
+                quick &= ~((z[0] >= zl) & (z[1] >= zl) & (z[2] >= zl))
+            inbox = ~(((qx[0] > 1) & (qx[1] > 1) & (qx[2] > 1))
+                      | ((qx[0] < -1) & (qx[1] < -1) & (qx[2] < -1))
+                      | ((qy[0] > 1) & (qy[1] > 1) & (qy[2] > 1))
+                      | ((qy[0] < -1) & (qy[1] < -1) & (qy[2] < -1)))
+            if projection == "paper" or mode == "overlap":
+                quick &= inbox
+            else:   # the projected box is exact only with every vertex in front
+                front = ((z[0] * s > sd.PAPER_CLAMP) & (z[1] * s > sd.PAPER_CLAMP)
+                         & (z[2] * s > sd.PAPER_CLAMP))
+                quick &= inbox | ~front
+            # the paper's clamp (or abs()) acts on some vertex of this triangle
+            near = ((z[0] * s < sd.PAPER_CLAMP) | (z[1] * s < sd.PAPER_CLAMP)
+                    | (z[2] * s < sd.PAPER_CLAMP))
+            return quick, near
+
+        def keep_words(d, qx, qy, mask):
+            """The words to AND into the grid (every bit kept where ~mask)."""
+            if projection == "paper":
+                edges, ok = sd.triangle_edges_list(qx, qy)
+            else:
+                edges, ok = sd.homogeneous_edges_list(d, s, nrm, eps, zl if sphere else None)
+            return sd.pack_list(sd.polygon_keep_list(edges, g, mask & ok), g)
+
+        def raster_pair(e, mask):
+            """Keep words of triangle e [G, 256] (per pixel) where mask. Both paths go
+            through here with per-pixel vertex gathers, so they compile to the same
+            arithmetic: XLA contracts a * b + c to an FMA within a fusion, and a
+            differently fused copy can round a cell centre on an edge the other way."""
+            v = tri_rows[e]                         # [G, 256, 9]: one gather of 9 floats
+            d = light_frame([v[..., i] for i in range(9)])
+            qx, qy = projected(d)
+            return keep_words(d, qx, qy, mask)
+
+        def chunk_entries(j):
+            """The chunk's list entries: live [G, K], triangle [G, K], half bits [G, K]."""
             slot = j * chunk + jnp.arange(chunk, dtype=jnp.int32)          # [K]
             live = slot[None, :] < counts[:, None]                          # [G, K]
             idx = jnp.where(live, offsets[:, None] + slot[None, :], 0)
-            ent = entries[idx]
-            eh = entry_half[idx]
-            verts = tri[:, ent]                                             # [9, G, K]
-            vid = tri_id[ent]
-            for k in range(chunk):
-                in_half = ((eh[:, k, None] >> phalf) & 1) == 1              # [G, 256]
-                act = live[:, k, None] & rel & in_half & (vid[:, k, None] != pid)
-                d = []
-                for v in range(3):
-                    dv = [verts[3 * v + i, :, k, None] - pos[i] for i in range(3)]
-                    d.append(tuple(dv[0] * fr[3 * c] + dv[1] * fr[3 * c + 1]
-                                   + dv[2] * fr[3 * c + 2] for c in range(3)))
-                z = [d[v][2] for v in range(3)]
-                hgt = [sd._dot(d[v], nrm) for v in range(3)]
-                quick = ~((z[0] <= 0) & (z[1] <= 0) & (z[2] <= 0))
-                quick &= ~((hgt[0] <= eps) & (hgt[1] <= eps) & (hgt[2] <= eps))
-                if sphere:
-                    quick &= ~((z[0] >= zl) & (z[1] >= zl) & (z[2] >= zl))
-                q = [sd.project_paper_list(d[v][0], d[v][1], d[v][2], s) for v in range(3)]
-                qx = [q[v][0] for v in range(3)]
-                qy = [q[v][1] for v in range(3)]
-                inbox = ~(((qx[0] > 1) & (qx[1] > 1) & (qx[2] > 1))
-                          | ((qx[0] < -1) & (qx[1] < -1) & (qx[2] < -1))
-                          | ((qy[0] > 1) & (qy[1] > 1) & (qy[2] > 1))
-                          | ((qy[0] < -1) & (qy[1] < -1) & (qy[2] < -1)))
-                if projection == "paper" or mode == "overlap":
-                    quick &= inbox
-                else:   # the projected box is exact only with every vertex in front
-                    front = ((z[0] * s > sd.PAPER_CLAMP) & (z[1] * s > sd.PAPER_CLAMP)
-                             & (z[2] * s > sd.PAPER_CLAMP))
-                    quick &= inbox | ~front
-                use = act & quick
-                tests = tests + act.astype(jnp.int32)
-                rast = rast + use.astype(jnp.int32)
-                # the paper's clamp (or abs()) acts on some vertex of this triangle
-                near = ((z[0] * s < sd.PAPER_CLAMP) | (z[1] * s < sd.PAPER_CLAMP)
-                        | (z[2] * s < sd.PAPER_CLAMP))
-                clamp = clamp + (use & near).astype(jnp.int32)
-                if mode == "overlap":
-                    pts = jnp.stack([jnp.stack(jnp.broadcast_arrays(qx[v], qy[v]), -1)
-                                     for v in range(3)], -2)
-                    area = sd.overlap_area(pts) / math.pi
-                    blocked = blocked + jnp.where(use, area, 0.0).astype(dtype)
-                    continue
-                if projection == "paper":
-                    edges, ok = sd.triangle_edges_list(qx, qy)
-                else:
-                    edges, ok = sd.homogeneous_edges_list(d, s, nrm, eps, zl if sphere else None)
-                keep = sd.pack_list(sd.polygon_keep_list(edges, g, use & ok), g)
-                words = [wd & kp for wd, kp in zip(words, keep)]
-            return words, blocked, tests, rast, clamp
+            return live, entries[idx], entry_half[idx]
 
-        words, blocked, tests, rast, clamp = jax.lax.fori_loop(
-            0, trips, body, (words0, blocked0, zero, zero, zero))
-        if mode == "overlap":
-            vis = jnp.clip(1.0 - blocked, 0.0, 1.0)
-        else:
-            vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
+        def visit(live, ent, eh, vid, k, alive):
+            """Entry k of the chunk on every pixel: geometry, act and use [G, 256]."""
+            in_half = ((eh[:, k, None] >> phalf) & 1) == 1                  # [G, 256]
+            act = live[:, k, None] & rel & in_half & (vid[:, k, None] != pid) & alive
+            d = light_frame([tri[i][ent[:, k], None] for i in range(9)])
+            qx, qy = projected(d)
+            quick, near = quick_reject(d, qx, qy)
+            return d, qx, qy, act, act & quick, near
+
+        if not defer:
+            # every visited pair is rasterized; the quick reject only gates the result
+            def body(j, state):
+                words, blocked, tests, rast, clamp = state
+                live, ent, eh = chunk_entries(j)
+                vid = tri_id[ent]
+                for k in range(chunk):
+                    _, qx, qy, act, use, near = visit(live, ent, eh, vid, k, True)
+                    tests = tests + act.astype(jnp.int32)
+                    rast = rast + use.astype(jnp.int32)
+                    clamp = clamp + (use & near).astype(jnp.int32)
+                    if mode == "overlap":
+                        pts = jnp.stack([jnp.stack(jnp.broadcast_arrays(qx[v], qy[v]), -1)
+                                         for v in range(3)], -2)
+                        area = sd.overlap_area(pts) / math.pi
+                        blocked = blocked + jnp.where(use, area, 0.0).astype(dtype)
+                        continue
+                    keep = raster_pair(jnp.broadcast_to(ent[:, k, None], shape), use)
+                    words = [wd & kp for wd, kp in zip(words, keep)]
+                return words, blocked, tests, rast, clamp
+
+            words, blocked, tests, rast, clamp = jax.lax.fori_loop(
+                0, trips, body, (words0, blocked0, zero, zero, zero))
+            if mode == "overlap":
+                vis = jnp.clip(1.0 - blocked, 0.0, 1.0)
+            else:
+                vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
+            return jnp.where(rel, vis, 0.0), tests, rast, clamp
+
+        # Deferred: a first pass over the list only runs the per-pixel quick reject and
+        # records the entries passing it as bits (bit b of word w: list slot 32 w + b of
+        # the round); the word index is the same for every pixel, so recording is one
+        # shift-or. Then every pixel pops its set bits, one per step for the whole batch,
+        # and rasterizes only those: max(passing) steps per round instead of the round's
+        # length. Rounds hold ``words_per_round`` x 32 slots; after each, a pixel whose
+        # grid is empty stops (nothing can change it) and the batch stops when no pixel
+        # is left.
+        per_word = 32 // chunk
+        n_words = (jnp.max(counts) + 31) // 32
+        word_idx = jnp.arange(words_per_round, dtype=jnp.int32)[:, None, None]
+        one = jnp.uint32(1)
+
+        def ctz(x):
+            """Trailing zeros of uint32 x (32 for x = 0)."""
+            return jax.lax.population_count((x & (~x + one)) - one).astype(jnp.int32)
+
+        def record(wi, state):
+            """Quick-reject the 32 slots of word wi (global); store their bits."""
+            base, tests, rast, clamp, bits, summary, alive = state
+
+            def step(st, carry):
+                cur, tests, rast, clamp = carry
+                j = wi * per_word + st
+                live, ent, eh = chunk_entries(j)
+                vid = tri_id[ent]
+                for k in range(chunk):
+                    _, _, _, act, use, near = visit(live, ent, eh, vid, k, alive)
+                    tests = tests + act.astype(jnp.int32)
+                    rast = rast + use.astype(jnp.int32)
+                    clamp = clamp + (use & near).astype(jnp.int32)
+                    shift = (st * chunk + k).astype(jnp.uint32)
+                    cur = cur | jax.lax.shift_left(use.astype(jnp.uint32), shift)
+                return cur, tests, rast, clamp
+
+            cur, tests, rast, clamp = jax.lax.fori_loop(
+                0, per_word, step, (jnp.zeros(shape, jnp.uint32), tests, rast, clamp))
+            local = wi - base
+            bits = jnp.where(word_idx == local, cur[None], bits)
+            summary = summary | jax.lax.shift_left((cur != 0).astype(jnp.uint32),
+                                                   local.astype(jnp.uint32))
+            return base, tests, rast, clamp, bits, summary, alive
+
+        def flush(words, base, bits, summary):
+            """Rasterize every recorded pair of the round (base: its first word)."""
+            todo = sum(jax.lax.population_count(bits[w]).astype(jnp.int32)
+                       for w in range(words_per_round))
+
+            def step(_, carry):
+                words, summary, cur, cur_w = carry
+                need = cur == 0
+                w_new = jnp.minimum(ctz(summary), words_per_round - 1)
+                loaded = jnp.take_along_axis(bits, w_new[None], 0)[0]
+                cur = jnp.where(need & (summary != 0), loaded, cur)
+                cur_w = jnp.where(need, w_new, cur_w)
+                summary = jnp.where(need, summary & (summary - one), summary)
+                has = cur != 0
+                slot = (base + cur_w) * 32 + ctz(cur)
+                cur = cur & (cur - one)
+                idx = jnp.where(has, offsets[:, None] + slot, 0)
+                keep = raster_pair(entries[idx], has)
+                return [wd & kp for wd, kp in zip(words, keep)], summary, cur, cur_w
+
+            words, _, _, _ = jax.lax.fori_loop(
+                0, jnp.max(todo), step,
+                (words, summary, jnp.zeros(shape, jnp.uint32), jnp.zeros(shape, jnp.int32)))
+            return words
+
+        def round_(state):
+            base, words, tests, rast, clamp, alive = state
+            end = jnp.minimum(base + words_per_round, n_words)
+            _, tests, rast, clamp, bits, summary, _ = jax.lax.fori_loop(
+                base, end, record,
+                (base, tests, rast, clamp, jnp.zeros((words_per_round,) + shape, jnp.uint32),
+                 jnp.zeros(shape, jnp.uint32), alive))
+            words = flush(words, base, bits, summary)
+            alive = functools.reduce(jnp.logical_or, [wd != 0 for wd in words])
+            return end, words, tests, rast, clamp, alive
+
+        def more(state):
+            return (state[0] < n_words) & jnp.any(state[-1] & rel)
+
+        alive0 = functools.reduce(jnp.logical_or, [wd != 0 for wd in words0])
+        state = jax.lax.while_loop(more, round_, (jnp.int32(0), words0, zero, zero, zero,
+                                                  alive0))
+        _, words, tests, rast, clamp, _ = state
+        vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
         return jnp.where(rel, vis, 0.0), tests, rast, clamp
 
     return run
@@ -512,7 +641,7 @@ def _expand(tile_of: np.ndarray, group: np.ndarray, members: np.ndarray):
 def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, seed,
                     projection, disk_scale, horizon, face_cull, gather_cull, tile_cull,
                     cluster_cull, cluster_size, bound, half_z, capacity, on_overflow, chunk,
-                    mode, method):
+                    mode, method, defer=False):
     timer = StageTimer()
     cam = gbuf.camera
     h, w = gbuf.shape
@@ -677,7 +806,7 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
             tri_soa = np.ascontiguousarray(tri_g_arr.reshape(-1, 9).T)
             args_common = (pix, jnp.asarray(tri_soa), jnp.asarray(tri_id), jnp.asarray(ent),
                            jnp.asarray(ehalf), jnp.asarray(dtype(eps)))
-            kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode)
+            kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode, defer)
             nchunks = -(-counts // chunk)
             vis = np.zeros((n_tiles, TILE * TILE))
             tests = np.zeros((n_tiles, TILE * TILE), np.int64)
@@ -748,9 +877,10 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
                "horizon": horizon, "face_cull": face_cull, "gather_cull": gather_cull,
                "tile_cull": tile_cull, "cluster_cull": cluster_cull,
                "cluster_size": cluster_size, "bound": bound, "half_z": half_z,
-               "capacity": capacity, "on_overflow": on_overflow, "chunk": chunk}
+               "capacity": capacity, "on_overflow": on_overflow, "chunk": chunk,
+               "defer": defer}
     if mode == "overlap":
-        for k in ("grid", "rotate", "seed", "projection"):
+        for k in ("grid", "rotate", "seed", "projection", "defer"):
             options.pop(k)
     return ShadowResult(vis_img, counters, timings, method, options)
 
@@ -832,6 +962,11 @@ COMMON_SOFT = {
                    "projection": Option("paper", "'paper': divide by max(1e-4, s |z|) with "
                                         "abs(); 'homogeneous': exact 3-D edge functions",
                                         allowed=("paper", "homogeneous")),
+                   "defer": Option(True, "rasterize only the pairs passing the per-pixel "
+                                   "quick reject (queued per pixel) and stop a pixel whose "
+                                   "grid is empty; False = rasterize every visited pair "
+                                   "and gate the result (same visibility)",
+                                   allowed=(True, False)),
                    **COMMON_SOFT})
 def soft_tiled(scene, gbuf, light, **opts):
     return soft_tiled_impl(scene, gbuf, light, mode="bitmask", method="soft_tiled", **opts)
