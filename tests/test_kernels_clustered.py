@@ -155,6 +155,7 @@ def test_method_equals_jax_and_reference(name, form):
     {"bounds": "implicit", "culling_planes": False},
     {"storage": "full", "passes": 2, "expand_level": 2},
     {"passes": 2, "expand_level": 5, "front_face_culling": True},
+    {"front_face_culling": True, "cull_side": "facing"},
     {"bias": "cap", "leaf_samples": "cluster", "depth_slices": "scaled"},
     {"z_bits": 4, "bounds": "implicit", "passes": 2, "expand_level": 3},
 ])
