@@ -260,7 +260,8 @@ def test_node_test_rounds_as_jax_on_ties():
             flips += extreme(t, r, c, np.maximum, (0, 1, 2)) < -tol[t, r]
     assert flips > 10                             # the x + y + q order would differ here
 
-    cfg = {"axes": (True, True, True), "storage": "full", "extra": True, "prune": False}
+    cfg = {"axes": (True, True, True), "storage": "full", "extra": True, "prune": False,
+           "bias_reject": False}
     a = {"g": jnp.asarray(g), "tol": jnp.asarray(tol), "bound": jnp.asarray(bound),
          "masks": jnp.asarray(word), "lo": jnp.asarray(lo), "hi": jnp.asarray(hi),
          "smin": jnp.asarray(smin),

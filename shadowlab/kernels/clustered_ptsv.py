@@ -1164,6 +1164,8 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     o = resolve_options("clustered_ptsv", options)
     if o["precision"] != "float32":
         raise ValueError("the clustered PTSV kernels run in float32 only (precision='float32')")
+    if o.get("bias_reject"):
+        raise ValueError("the clustered PTSV kernels have no bias_reject node test")
     dev = init(device)
     load(dev)
     fma = xla_contracts(np.float32)
