@@ -45,7 +45,7 @@ def _mismatches(res, truth, gbuf):
 COMBOS = [
     dict(),
     dict(bounds="implicit", culling_planes=False, passes=2, expand_level=2, prune=True,
-         wave=64),
+         wave=64, bias_reject=True),
     dict(storage="full", front_face_culling=True, leaf_samples="cluster",
          depth_slices="scaled", z_bits=4),
 ]
@@ -234,6 +234,7 @@ def _loop_traversal(det):
     ptr = None if h.ptr is None else [np.asarray(x) for x in h.ptr]
     g, tol = np.asarray(det["g"], np.float64), np.asarray(det["tol"], np.float64)
     bound = np.asarray(det["bound"], np.float64)
+    smax = float(det["smax"])
     table = np.asarray(det["table"])
     n_s = int(det["sample_count"])
     u = np.finfo(np.float64).eps
@@ -269,7 +270,10 @@ def _loop_traversal(det):
                 vmin = [sum(min(g[t, r, a] * blo[j, a], g[t, r, a] * bhi[j, a]) for a in range(3))
                         + g[t, r, 3] for r in range(7)]
                 rej = any(vmax[r] < -tol[t, r] for r in range(3)) or (
-                    s[j] > 0 and vmin[3] - tol[t, 3] > 0)
+                    s[j] > 0 and vmin[3] - tol[t, 3] > 0) or (
+                    det["bias_reject"] and s[j] > 0 and blo[j, 2] > 0
+                    and ((vmin[3] - tol[t, 3]) / blo[j, 2]) * smax * (1 + 64 * u)
+                    > bound[t] * (1 - 64 * u))
                 cmax = vmax[3] + tol[t, 3]
                 acc = (not rej and all(vmin[r] >= tol[t, r] for r in range(3)) and s[j] > 0
                        and cmax < 0 and (cmax / bhi[j, 2]) * s[j] * (1 - 64 * u)
@@ -288,6 +292,7 @@ def _loop_traversal(det):
 
 @pytest.mark.parametrize("method,opts,two", [
     ("cluster", dict(bounds="explicit"), True),
+    ("cluster", dict(bounds="explicit", bias_reject=True), False),
     ("cluster", dict(bounds="implicit", storage="full"), False),
     ("ptsv", dict(), False)])
 def test_traversal_counters_against_a_loop(method, opts, two):

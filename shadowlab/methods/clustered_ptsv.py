@@ -198,6 +198,12 @@ def _test_children(cfg, level, a, tri, node, valid, accepted):
     pos_scale = sm > 0
     rej_cap = pos_scale & (cmin > 0)
     lim = bound[tri][:, None]
+    if cfg["bias_reject"]:
+        # every sample's world cap value is >= cmin / q >= cmin / q_lo (cmin <= 0 here), so
+        # with scale <= smax (all samples) its biased value is >= (cmin / q_lo) smax
+        lq = blo[..., 2]
+        rej_cap |= pos_scale & (lq > 0) & (
+            (cmin / lq) * a["smax"] * (1 + _MARGIN_ULPS * u) > lim * (1 - _MARGIN_ULPS * u))
     acc_cap = pos_scale & (cmax < 0) & (
         (cmax / hq) * sm * (1 - _MARGIN_ULPS * u) < lim * (1 + _MARGIN_ULPS * u))
     basic_reject = rej_edge | rej_cap
@@ -313,7 +319,8 @@ def _expand_level(cfg, level, a, st, acc_seen, tri, node, job, n):
 
 
 @functools.lru_cache(maxsize=64)
-def _pass_kernel(shape, axes, storage, extra, prune, cluster_only, level0, stop, cap,
+def _pass_kernel(shape, axes, storage, extra, prune, cluster_only, bias_reject, level0, stop,
+                 cap,
                  out_cap):
     """A jitted traversal pass: waves of jobs from ``level0`` down to ``stop`` (push
     (triangle, node) jobs at level ``stop``; stop > D: test the leaves). One call runs
@@ -331,7 +338,8 @@ def _pass_kernel(shape, axes, storage, extra, prune, cluster_only, level0, stop,
     def run(params, jobs_tri, jobs_node, n_jobs, wave_size, a, accepted, tile_shadow,
             tile_tests):
         cfg = dict(tree=shape, ttree=_with_params(shape, params), axes=axes, storage=storage,
-                   extra=extra, prune=prune, cluster_only=cluster_only)
+                   extra=extra, prune=prune, cluster_only=cluster_only,
+                   bias_reject=bias_reject)
         iters_cap = jobs_tri.shape[0]
         st = dict(accepted=accepted, tile_shadow=tile_shadow, tile_tests=tile_tests,
                   iters=jnp.zeros(iters_cap, jnp.int32), counts=jnp.zeros(4, jnp.int32),
@@ -545,10 +553,11 @@ def _sample_stage(shape, params, pos, scale, view, index, count):
                        tile_scale=scale[sc], tile_key=keys[sc], tile_valid=table < s)
     # max |x| of the rounded positions = the rounded max |x| (rounding is monotonic)
     qmax = jnp.where(count > 0, jnp.max(jnp.where(valid, coords[:, 2], 0)), 1)
+    smax = jnp.max(jnp.where(valid, scale, 0))
     pmax = jnp.where(count > 0, jnp.max(jnp.abs(pos)), 1)
     return dict(coords=coords, keys=keys, saturated=saturated & valid, valid=valid, slot=slot,
                 table=table, tiles=tile_arrays, qmax=qmax.astype(pos.dtype),
-                pmax=pmax.astype(pos.dtype))
+                pmax=pmax.astype(pos.dtype), smax=smax)
 
 
 def top_jobs(iterations: np.ndarray, k: int = TOP_JOBS) -> np.ndarray:
@@ -563,7 +572,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                          bias: str, bounds: str = "explicit", storage: str = "compact",
                          culling_planes: bool = True, passes: int = 1, expand_level: int = 3,
                          prune: bool = False, wave: int = 512, front_face_culling: bool = False,
-                         cull_side: str = "averted", leaf_samples: str = "tile", z_bits: int = 0,
+                         cull_side: str = "averted", bias_reject: bool = False,
+                         leaf_samples: str = "tile", z_bits: int = 0,
                          depth_slices: str = "clamp", method: str = "clustered_ptsv",
                          options: dict | None = None):
     """The whole pipeline for ``kind`` = "cluster" (2014) or "ptsv" (2011).
@@ -630,10 +640,11 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         axes = _explicit_axes(tree, bounds)
         with timer.stage("traverse"):
             arrays = dict(flat_hierarchy(hier, tree, dtype), g=g, tol=tol,
-                          bound=jnp.asarray(bound), planes=planes, **tiles)
+                          bound=jnp.asarray(bound), planes=planes, smax=sst["smax"], **tiles)
             accepted = jnp.zeros((level_offsets(tree)[1], 32), bool)
             p_tiles = tree.tiles_x * tree.tiles_y
-            opts = (axes, storage, extra != "none", bool(prune), leaf_samples == "cluster")
+            opts = (axes, storage, extra != "none", bool(prune), leaf_samples == "cluster",
+                    bool(bias_reject))
             st, iters1, iters2, tri2, key2, stats = traverse(
                 timer, shape, params, opts, arrays, casters, accepted,
                 jnp.zeros((p_tiles, tree.tile_pixels), bool),
@@ -683,7 +694,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                "pass2_triangles": tri2, "pass2_nodes": key2, "casters": casters,
                "tree": tree, "memory": memory, "hierarchy": hier, "g": g, "tol": tol,
                "bound": bound, "planes": planes, "scale": scale_d, "keys": keys,
-               "table": table, "axes": axes, "extra": extra,
+               "table": table, "axes": axes, "extra": extra, "smax": sst["smax"],
+               "bias_reject": bool(bias_reject),
                "tests": tests, "sample_count": samples.count}
     return ShadowResult(lit, counters, timings, method, dict(options or {})), details
 
@@ -708,6 +720,10 @@ COMMON_TRAVERSAL_OPTIONS = {
                         "from the light ('averted': exact with the bias) or facing it "
                         "('facing': the papers' choice; loses shadows where a receiver is "
                         "within the bias below a closed object)", allowed=CULL_SIDES),
+    "bias_reject": Option(False, "also reject nodes whose samples all lie in front of the "
+                          "caster's cap within the bias (not in the papers; needs the largest "
+                          "bias scale of all samples; cuts a receiver's traversal of its own "
+                          "surface)", allowed=BOOL),
     "leaf_samples": Option("tile", "at a leaf test every sample of the tile (paper) or only "
                            "the samples of that cluster", allowed=("tile", "cluster")),
 }
