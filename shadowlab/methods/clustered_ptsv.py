@@ -591,7 +591,6 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         samples = view_samples(gbuf, light)
     camera = gbuf.camera
     light_h = hard_light(light).homogeneous
-    h, w = gbuf.shape
     with precision_mode(precision) as dtype:
         tree = (ch.cluster_layout(camera, z_bits, depth_slices) if kind == "cluster"
                 else ch.ptsv_layout(camera))
