@@ -4,7 +4,7 @@ import numpy as np
 
 from shadowlab import Camera, PointLight, Scene
 from shadowlab.analysis import compare_hard, compare_soft, error_map
-from shadowlab.analysis.boundary import boundary_distance, unexplained_mismatches
+from shadowlab.analysis.boundary import boundary_distance, edge_tolerance, unexplained_mismatches
 from shadowlab.raycast import GBuffer
 
 
@@ -55,3 +55,23 @@ def test_mismatches_on_a_caster_edge_are_explained_others_are_not():
     wrong = ~truth
     left = unexplained_mismatches(scene, gbuf, light, wrong, truth)
     assert sorted(map(tuple, left)) == [(0, 1), (0, 2)]
+
+
+def test_edge_distance_is_in_world_units_on_a_sliver():
+    # A 0.02-wide sliver at height 1 along z; the light right above its edge x = 0.
+    # Segments miss the edge by 1e-6 (float32 rounding of unit coordinates: explained)
+    # and by 1e-3 (a real error: not explained). In barycentric terms 1e-6 is 5e-5 of
+    # the sliver's width, which a barycentric tolerance of 1e-5 would not excuse.
+    sliver = Scene(np.array([[0.0, 1, -1], [0.0, 1, 1], [-0.02, 1, 0]]),
+                   np.array([[0, 1, 2]]), np.zeros(1))
+    light = PointLight((0.0, 4.0, 0.0))
+    # A sample at x = s below the light: the segment crosses height 1 at x = 0.75 s.
+    gbuf = _gbuffer([[-1e-6 / 0.75, 0, 0], [1e-6 / 0.75, 0, 0], [1e-3 / 0.75, 0, 0]],
+                    [[0, 1, 0]] * 3)
+    pixels = np.array([[0, 0], [0, 1], [0, 2]])
+    dist = boundary_distance(sliver, gbuf, light, pixels, reach=1.0)
+    np.testing.assert_allclose(dist["edge"], [1e-6, 1e-6, 1e-3], rtol=1e-6)
+    assert edge_tolerance(sliver, light) < 1e-4
+    truth = np.array([[False, True, True]])
+    left = unexplained_mismatches(sliver, gbuf, light, ~truth, truth)
+    assert sorted(map(tuple, left)) == [(0, 2)]

@@ -5,6 +5,13 @@ may disagree where the segment from a sample to the light passes within rounding
 a caster's edge, or crosses a caster just at the self-shadowing cut ``eps`` above the
 sample's tangent plane. For each mismatched pixel this module recomputes, in float64
 and against every triangle, how close the segment comes to such a boundary.
+
+Edge distances are in world units, measured in the caster's plane from the crossing
+point to the nearest edge line, and compared with ``EDGE_ULPS`` float32 spacings of the
+scene's coordinate magnitude (largest absolute coordinate of the vertices and the
+light): the inputs of every method are float32 there, so nothing finer is resolved. A
+barycentric tolerance would be too strict on slivers (a 0.02-wide strand) and too loose
+on large triangles.
 """
 
 from __future__ import annotations
@@ -15,24 +22,49 @@ from ..raycast import GBuffer, shadow_epsilon
 from ..scene.mesh import Scene
 from ..scene.view import Light, hard_light
 
-EDGE_TOLERANCE = 1e-5     # barycentric distance from a caster's edge
+EDGE_ULPS = 64            # float32 spacings of the coordinate magnitude (edge tolerance)
 CUT_TOLERANCE = 1e-3      # relative distance of the crossing height from eps
 
 
+def edge_tolerance(scene: Scene, light: Light) -> float:
+    """World units: ``EDGE_ULPS`` float32 spacings of the largest absolute coordinate
+    of the scene's vertices and the (finite) light position."""
+    lh = hard_light(light).homogeneous
+    scale = float(np.abs(scene.vertices).max(initial=0.0))
+    if lh[3]:
+        scale = max(scale, float(np.abs(lh[:3] / lh[3]).max()))
+    return EDGE_ULPS * float(np.finfo(np.float32).eps) * max(scale, 1.0)
+
+
 def boundary_distance(scene: Scene, gbuf: GBuffer, light: Light, pixels: np.ndarray,
-                      shadow_eps: float = 1e-5, chunk: int = 65536) -> dict:
+                      shadow_eps: float = 1e-5, chunk: int = 65536,
+                      reach: float | None = None) -> dict:
     """For pixels [K, 2] (row, col): the float64 margins of their segment to the light.
 
+    Args:
+        reach: world units; triangles whose edge the segment misses by more than this
+            are not considered (default: ``edge_tolerance(scene, light)``).
+
     Returns:
-        ``edge`` float64 [K]: the smallest barycentric distance from a caster's edge over
-        triangles the segment crosses (or nearly crosses) above the cut, and ``cut``
-        float64 [K]: the smallest relative distance |height - eps| / eps of a crossing.
+        ``edge`` float64 [K]: the smallest world distance, in the caster's plane, from the
+        crossing point to an edge line of a caster that the segment crosses (or misses
+        by at most ``reach``) above the cut (inf if none), and ``cut`` float64 [K]: the
+        smallest relative distance |height - eps| / eps of a crossing.
     """
     hl = hard_light(light)
     lh = hl.homogeneous
     eps = shadow_epsilon(scene, shadow_eps)
     tri = scene.triangles
     a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    reach = edge_tolerance(scene, light) if reach is None else reach
+    # World distance per unit of each barycentric coordinate: the triangle's height
+    # over the edge where that coordinate is 0 (u: edge v0-v2, v: v0-v1, w: v1-v2).
+    twice_area = np.linalg.norm(np.cross(e1, e2), axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        heights = np.stack([twice_area / np.linalg.norm(e2, axis=-1),
+                            twice_area / np.linalg.norm(e1, axis=-1),
+                            twice_area / np.linalg.norm(e2 - e1, axis=-1)], axis=-1)
+    heights = np.nan_to_num(heights, nan=0.0, posinf=0.0)
     k = len(pixels)
     edge = np.full(k, np.inf)
     cut = np.full(k, np.inf)
@@ -52,11 +84,13 @@ def boundary_distance(scene: Scene, gbuf: GBuffer, light: Light, pixels: np.ndar
             t = np.einsum("ij,ij->i", e2[sl_], q) * inv
             inside_t = (t > 0) & ((t < 1) if lh[3] else True) & ok
             height = t * (nrm @ d)
-            margin = np.minimum(np.minimum(u, v), 1 - u - v)
-            near = inside_t & (margin > -EDGE_TOLERANCE) & (height > eps)
+            bary = np.stack([u, v, 1 - u - v], axis=-1)
+            world = bary * heights[sl_]                 # signed distances to the edge lines
+            margin = world.min(axis=-1)
+            near = inside_t & (margin > -reach) & (height > eps)
             if near.any():
                 edge[n] = min(edge[n], np.abs(margin[near]).min())
-            crossing = inside_t & (margin >= 0)
+            crossing = inside_t & (bary.min(axis=-1) >= 0)
             if crossing.any():
                 cut[n] = min(cut[n], (np.abs(height[crossing] - eps) / eps).min())
     return {"edge": edge, "cut": cut}
@@ -65,10 +99,12 @@ def boundary_distance(scene: Scene, gbuf: GBuffer, light: Light, pixels: np.ndar
 def unexplained_mismatches(scene: Scene, gbuf: GBuffer, light: Light, lit: np.ndarray,
                            truth: np.ndarray, shadow_eps: float = 1e-5) -> np.ndarray:
     """int [K, 2]: mismatched valid pixels that lie on no shadow boundary (within
-    ``EDGE_TOLERANCE`` of a caster's edge or ``CUT_TOLERANCE`` of the cut)."""
+    ``edge_tolerance(scene, light)`` world units of a caster's edge or
+    ``CUT_TOLERANCE`` of the cut)."""
     bad = np.argwhere((np.asarray(lit, bool) != np.asarray(truth, bool)) & gbuf.valid)
     if len(bad) == 0:
         return bad
-    dist = boundary_distance(scene, gbuf, light, bad, shadow_eps)
-    explained = (dist["edge"] <= EDGE_TOLERANCE) | (dist["cut"] <= CUT_TOLERANCE)
+    tol = edge_tolerance(scene, light)
+    dist = boundary_distance(scene, gbuf, light, bad, shadow_eps, reach=tol)
+    explained = (dist["edge"] <= tol) | (dist["cut"] <= CUT_TOLERANCE)
     return bad[~explained]
