@@ -4,13 +4,14 @@ A thread per fragment (as the paper's fragment shader): the thread keeps the sun
 grid in registers (``words``, up to 31 uint32), initialises it to the disk mask (minus
 the part below the receiver's horizon), and for each of its triangles builds the
 triangle's edge functions in disk space, computes on every scanline the cells outside
-each edge with one division and one logical shift, ORs them and ANDs the result into
-the grid. Visibility = set bits / disk bits. The arithmetic is that of
+each edge with one division per edge and one logical shift, ORs them and ANDs the
+result into the grid. Visibility = set bits / disk bits. The arithmetic is that of
 ``shadowlab.methods.sun_disk`` (``project_paper`` / ``triangle_edges_2d`` or
-``homogeneous_edges``, ``edge_outside_rows``, ``polygon_keep_rows``, ``pack_rows``),
-rounded the same way: this file is compiled without contraction (``fuse_fp=False``) and
-places the fused multiply-adds XLA places in the JAX version explicitly (``fma``
-argument, default ``psv.xla_contracts()``), so the grids are bit-identical.
+``homogeneous_edges``, ``horizon_edge``, ``edge_outside_rows``, ``polygon_keep_rows``,
+``pack_rows``, ``visibility``), which rounds every value deciding a bit in a fixed way
+(opaque products, ordered sums, true divisions, negations for orientation). This file
+does the same plain operations in the same order, compiled without contraction
+(``fuse_fp=False``), so the grids are bit-identical, exact ties included.
 
 Inputs are per fragment: the triangle vertices minus the fragment in its light frame
 ``d`` [F, T, 3, 3], the disk scale ``s`` [F], the receiver normal ``n`` [F, 3] (light
@@ -25,7 +26,6 @@ import functools
 import numpy as np
 import warp as wp
 
-from .psv import fma32, xla_contracts
 from .runtime import init
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
@@ -39,14 +39,6 @@ Edges = wp.types.vector(length=5, dtype=wp.float32)
 
 
 @wp.func
-def _fms(a: wp.float32, b: wp.float32, c: wp.float32, d: wp.float32, fma: wp.int32):
-    """a * b - c * d (XLA contracts it to fma(a, b, -(c * d)))."""
-    if fma != 0:
-        return fma32(a, b, -(c * d))
-    return a * b - c * d
-
-
-@wp.func
 def _shr(x: wp.uint32, k: wp.uint32):
     """Logical right shift; a shift by 32 or more gives 0."""
     r = wp.uint32(0)
@@ -56,35 +48,48 @@ def _shr(x: wp.uint32, k: wp.uint32):
 
 
 @wp.func
-def _outside_row(a: wp.float32, b: wp.float32, c: wp.float32, y: wp.float32,
-                 c0: wp.float32, w: wp.float32, cols: wp.int32, full: wp.uint32,
-                 fma: wp.int32):
-    """Cells of a scanline outside the half-plane a x + b y + c >= 0 (sun_disk's
-    ``edge_outside_rows`` for one row)."""
-    f0 = wp.float32(0.0)
-    if fma != 0:
-        f0 = fma32(b, y, a * c0) + c          # a * c0 is per polygon, b * y per row
-    else:
-        f0 = (a * c0 + b * y) + c
+def _flip(x: wp.float32, neg: bool):
+    """-x if neg (an orientation flip: a negation, as sun_disk._flip)."""
+    r = x
+    if neg:
+        r = -x
+    return r
+
+
+@wp.func
+def _edge_setup(a: wp.float32, b: wp.float32, c: wp.float32, c0: wp.float32,
+                w: wp.float32):
+    """Per-edge values of sun_disk.edge_outside_list: (step, base, t0, dt)."""
     step = a * w
-    safe = step
-    if step == 0.0:
-        safe = wp.float32(1.0)
+    base = a * c0 + c                      # fuse_fp=False: rounded product, then add
+    inv = wp.float32(0.0)
+    if step != 0.0:                        # a NaN step divides too, as in JAX
+        inv = wp.float32(-1.0) / step
+    return wp.vec4f(step, base, base * inv, b * inv)
+
+
+@wp.func
+def _outside_row(e: wp.vec4f, b: wp.float32, y: wp.float32, cols: wp.int32,
+                 full: wp.uint32):
+    """Cells of a scanline at height y outside the edge set up by ``_edge_setup``
+    (sun_disk's ``edge_outside_list`` for one row)."""
+    step = e[0]
     nf = wp.float32(cols)
-    # XLA rewrites x / broadcast(y) as x * broadcast(1 / y): round the same way
-    t = -f0 * (1.0 / safe)
-    if wp.isnan(t):
-        t = nf + 1.0
-    t = wp.min(wp.max(t, -1.0), nf + 1.0)
-    first_in = wp.uint32(wp.min(wp.max(wp.ceil(t), 0.0), nf))
-    first_out = wp.uint32(wp.min(wp.max(wp.floor(t) + 1.0, 0.0), nf))
     out = wp.uint32(0)
-    if step > 0.0:
-        out = full ^ _shr(full, first_in)        # columns 0 .. first_in - 1
-    elif step < 0.0:
-        out = _shr(full, first_out)              # columns first_out .. cols - 1
-    elif f0 < 0.0:
-        out = full
+    if step == 0.0:
+        if e[1] + b * y < 0.0:
+            out = full
+    else:
+        t = e[2] + e[3] * y
+        if wp.isnan(t):
+            t = nf + 1.0
+        t = wp.min(wp.max(t, -1.0), nf + 1.0)
+        if step > 0.0:
+            first_in = wp.uint32(wp.min(wp.max(wp.ceil(t), 0.0), nf))
+            out = full ^ _shr(full, first_in)          # columns 0 .. first_in - 1
+        else:                                          # step < 0 or NaN
+            first_out = wp.uint32(wp.min(wp.max(wp.floor(t) + 1.0, 0.0), nf))
+            out = _shr(full, first_out)                # columns first_out .. cols - 1
     return out
 
 
@@ -109,7 +114,7 @@ def rasterize(d: wp.array4d(dtype=wp.float32), s_in: wp.array(dtype=wp.float32),
               disk: wp.array(dtype=wp.uint32), row_y: wp.array(dtype=wp.float32),
               cols: wp.int32, rows: wp.int32, per_word: wp.int32, full: wp.uint32,
               c0: wp.float32, w: wp.float32, inv_bits: wp.float32,
-              projection: wp.int32, sphere: wp.int32, horizon: wp.int32, fma: wp.int32,
+              projection: wp.int32, sphere: wp.int32, horizon: wp.int32,
               words_out: wp.array2d(dtype=wp.uint32), vis_out: wp.array(dtype=wp.float32),
               drawn_out: wp.array(dtype=wp.int32)):
     """A thread per fragment: rasterize its triangles into its sun-disk grid."""
@@ -123,8 +128,10 @@ def rasterize(d: wp.array4d(dtype=wp.float32), s_in: wp.array(dtype=wp.float32),
     ny = n_in[f, 1]
     nz = n_in[f, 2]
     if horizon != 0:                     # clear the disk below the receiver's horizon
+        hb = s * ny
+        he = _edge_setup(s * nx, hb, nz, c0, w)
         for r in range(rows):
-            below = _outside_row(s * nx, s * ny, nz, row_y[r], c0, w, cols, full, fma)
+            below = _outside_row(he, hb, row_y[r], cols, full)
             words = _and_row(words, r, full & ~below, per_word)
     drawn = int(0)
     for t in range(d.shape[1]):
@@ -136,27 +143,30 @@ def rasterize(d: wp.array4d(dtype=wp.float32), s_in: wp.array(dtype=wp.float32),
         ne = int(3)
         ok = bool(True)
         if projection == 0:
-            # paper: q = d.xy / max(1e-4, s |z|), then the 2-D triangle's edges
+            # paper: q = d.xy * (1 / max(1e-4, s |z|)), then the 2-D triangle's edges
             qx = wp.vec3f()
             qy = wp.vec3f()
             for i in range(3):
                 den = wp.max(wp.float32(PAPER_CLAMP), s * wp.abs(d[f, t, i, 2]))
-                rec = 1.0 / den                  # as XLA: d.xy * (1 / den)
+                rec = wp.float32(1.0) / den
                 qx[i] = d[f, t, i, 0] * rec
                 qy[i] = d[f, t, i, 1] * rec
-            area = wp.float32(0.0)
-            for i in range(3):
-                j = (i + 1) % 3
-                area = area + _fms(qx[i], qy[j], qx[j], qy[i], fma)
-            sg = wp.sign(area)
-            ok = area != 0.0
+            term = wp.vec3f()
             for i in range(3):
                 j = (i + 1) % 3
                 ex = qx[j] - qx[i]
                 ey = qy[j] - qy[i]
-                ea[i] = -ey * sg
-                eb[i] = ex * sg
-                ec[i] = _fms(ey, qx[i], ex, qy[i], fma) * sg
+                ea[i] = -ey
+                eb[i] = ex
+                ec[i] = ey * qx[i] - ex * qy[i]
+                term[i] = qx[i] * qy[j] - qx[j] * qy[i]
+            area = (term[0] + term[1]) + term[2]
+            neg = area < 0.0
+            ok = area != 0.0
+            for i in range(3):
+                ea[i] = _flip(ea[i], neg)
+                eb[i] = _flip(eb[i], neg)
+                ec[i] = _flip(ec[i], neg)
         else:
             # homogeneous: u = (s x, s y, 1) hits the triangle iff u . (d_i x d_i+1)
             # has the sign of det(d0, d1, d2); plus the receiver-bias edge (and the
@@ -170,69 +180,67 @@ def rasterize(d: wp.array4d(dtype=wp.float32), s_in: wp.array(dtype=wp.float32),
                 bx = d[f, t, j, 0]
                 by = d[f, t, j, 1]
                 bz = d[f, t, j, 2]
-                m[i, 0] = _fms(ay, bz, az, by, fma)
-                m[i, 1] = _fms(az, bx, ax, bz, fma)
-                m[i, 2] = _fms(ax, by, ay, bx, fma)
-            det = wp.float32(0.0)
-            if fma != 0:
-                det = fma32(d[f, t, 2, 2], m[0, 2], fma32(d[f, t, 2, 1], m[0, 1],
-                                                        d[f, t, 2, 0] * m[0, 0]))
-            else:
-                det = (d[f, t, 2, 0] * m[0, 0] + d[f, t, 2, 1] * m[0, 1]) \
-                    + d[f, t, 2, 2] * m[0, 2]
-            sg = wp.sign(det)
+                m[i, 0] = ay * bz - az * by
+                m[i, 1] = az * bx - ax * bz
+                m[i, 2] = ax * by - ay * bx
+            det = (d[f, t, 2, 0] * m[0, 0] + d[f, t, 2, 1] * m[0, 1]) \
+                + d[f, t, 2, 2] * m[0, 2]
+            neg = det < 0.0
             ok = det != 0.0
             for i in range(3):
-                ea[i] = s * (m[i, 0] * sg)
-                eb[i] = s * (m[i, 1] * sg)
-                ec[i] = m[i, 2] * sg
+                ea[i] = s * _flip(m[i, 0], neg)
+                eb[i] = s * _flip(m[i, 1], neg)
+                ec[i] = _flip(m[i, 2], neg)
             e1x = d[f, t, 1, 0] - d[f, t, 0, 0]
             e1y = d[f, t, 1, 1] - d[f, t, 0, 1]
             e1z = d[f, t, 1, 2] - d[f, t, 0, 2]
             e2x = d[f, t, 2, 0] - d[f, t, 0, 0]
             e2y = d[f, t, 2, 1] - d[f, t, 0, 1]
             e2z = d[f, t, 2, 2] - d[f, t, 0, 2]
-            ntx = _fms(e1y, e2z, e1z, e2y, fma)
-            nty = _fms(e1z, e2x, e1x, e2z, fma)
-            ntz = _fms(e1x, e2y, e1y, e2x, fma)
+            ntx = e1y * e2z - e1z * e2y
+            nty = e1z * e2x - e1x * e2z
+            ntz = e1x * e2y - e1y * e2x
             ad = wp.abs(det)
-            es = eps * sg
-            ea[3] = s * _fms(ad, nx, es, ntx, fma)
-            eb[3] = s * _fms(ad, ny, es, nty, fma)
-            ec[3] = _fms(ad, nz, es, ntz, fma)
+            es = _flip(eps, neg)
+            ea[3] = s * (ad * nx - es * ntx)
+            eb[3] = s * (ad * ny - es * nty)
+            ec[3] = ad * nz - es * ntz
             ne = 4
             if sphere != 0:
                 zl = z_light[f]
-                ea[4] = (s * (zl * ntx)) * sg
-                eb[4] = (s * (zl * nty)) * sg
-                cz = wp.float32(0.0)
-                if fma != 0:
-                    cz = fma32(zl, ntz, -det)
-                else:
-                    cz = zl * ntz - det
-                ec[4] = cz * sg
+                ea[4] = _flip(s * (zl * ntx), neg)
+                eb[4] = _flip(s * (zl * nty), neg)
+                ec[4] = _flip(zl * ntz - det, neg)
                 ne = 5
         if not ok:
             continue
         drawn += 1
+        es0 = _edge_setup(ea[0], eb[0], ec[0], c0, w)
+        es1 = _edge_setup(ea[1], eb[1], ec[1], c0, w)
+        es2 = _edge_setup(ea[2], eb[2], ec[2], c0, w)
+        es3 = _edge_setup(ea[3], eb[3], ec[3], c0, w)
+        es4 = _edge_setup(ea[4], eb[4], ec[4], c0, w)
         for r in range(rows):
-            out = wp.uint32(0)
-            for e in range(ne):
-                out = out | _outside_row(ea[e], eb[e], ec[e], row_y[r], c0, w, cols, full,
-                                         fma)
+            y = row_y[r]
+            out = _outside_row(es0, eb[0], y, cols, full)
+            out = out | _outside_row(es1, eb[1], y, cols, full)
+            out = out | _outside_row(es2, eb[2], y, cols, full)
+            if ne > 3:
+                out = out | _outside_row(es3, eb[3], y, cols, full)
+            if ne > 4:
+                out = out | _outside_row(es4, eb[4], y, cols, full)
             words = _and_row(words, r, out, per_word)      # keep the cells outside
     bits = int(0)
     for k in range(nwords):
         words_out[f, k] = words[k]
         bits += wp.bit_count(words[k])
-    # XLA compiles popcount / disk_bits as popcount * (1 / disk_bits): round the same way
-    vis_out[f] = wp.float32(bits) * inv_bits
+    vis_out[f] = wp.float32(bits) * inv_bits     # sun_disk.visibility: popcount * fl(1/bits)
     drawn_out[f] = drawn
 
 
 def visibility(d, s, n, *, grid: str = "16x16", projection: str = "paper",
                eps: float = 0.0, z_light=None, active=None, horizon: bool = False,
-               fma: bool | None = None, device: str | None = None) -> dict:
+               device: str | None = None) -> dict:
     """Rasterize every fragment's triangles into its grid (a thread per fragment).
 
     Args:
@@ -248,8 +256,6 @@ def visibility(d, s, n, *, grid: str = "16x16", projection: str = "paper",
     from ..methods import sun_disk as sd
 
     dev = init(device)
-    if fma is None:
-        fma = xla_contracts(np.float32)
     g = sd.grid(grid)
     d = np.ascontiguousarray(d, np.float32)
     f_count, t_count = d.shape[:2]
@@ -276,7 +282,7 @@ def visibility(d, s, n, *, grid: str = "16x16", projection: str = "paper",
             arr(n, f32), arr(zl, f32), arr(active, np.int32), f32(eps),
             arr(g.disk_mask(), np.uint32), arr(ys, f32), g.cols, g.rows, g.per_word,
             int(g.full_row), f32(-1.0 + 0.5 * w64), f32(w64), f32(1) / f32(g.disk_bits),
-            PROJECTIONS[projection], int(sphere), int(horizon), int(bool(fma)),
+            PROJECTIONS[projection], int(sphere), int(horizon),
             words, vis, drawn])
     return {"words": words.numpy()[:f_count], "visibility": vis.numpy()[:f_count],
             "rasterized": drawn.numpy()[:f_count]}
@@ -314,19 +320,21 @@ def _jax_rasterizer(grid, projection, eps, sphere, horizon):
     @jax.jit
     def run(d, s, n, zl, active):
         f_count, t_count = d.shape[:2]
+        zero = sd.data_zero(s)         # one opaque zero for every product
         words = jnp.broadcast_to(jnp.asarray(g.disk_mask()), (f_count, g.words))
         if horizon:
-            below = sd.edge_outside_rows(s * n[:, 0], s * n[:, 1], n[:, 2], g)
+            he = sd.horizon_edge_list((n[:, 0], n[:, 1], n[:, 2]), s, zero)
+            below = sd.edge_outside_rows(*he, g, zero)
             words = words & ~sd.pack_rows(below, g)
         sb = jnp.broadcast_to(s[:, None], (f_count, t_count))
         nb = jnp.broadcast_to(n[:, None, :], (f_count, t_count, 3))
         if projection == "paper":
-            q = sd.project_paper(d, sb[..., None])
-            edges, ok = sd.triangle_edges_2d(q)
+            q = sd.project_paper(d, sb[..., None], zero)
+            edges, ok = sd.triangle_edges_2d(q, zero)
         else:
             zlb = jnp.broadcast_to(zl[:, None], (f_count, t_count)) if sphere else None
-            edges, ok = sd.homogeneous_edges(d, sb, nb, eps, zlb)
-        keep = sd.pack_rows(sd.polygon_keep_rows(edges, g, active & ok), g)   # [F, T, W]
+            edges, ok = sd.homogeneous_edges(d, sb, nb, eps, zlb, zero)
+        keep = sd.pack_rows(sd.polygon_keep_rows(edges, g, active & ok, zero), g)  # [F, T, W]
         for t in range(t_count):
             words = words & keep[:, t]
         return words, sd.visibility(words, g), jnp.sum(active & ok, axis=1)

@@ -40,6 +40,14 @@ Projections (see docs/soft_tiled.md):
   hit point to at least ``eps`` above the receiver's tangent plane (the reference's
   receiver bias) and, for a sphere light, in front of the light's silhouette disk.
 
+Rounding: every value that decides a bit (projection, edge functions, the per-row
+crossing values, orientation) is rounded the same way in any surrounding program:
+products go through :func:`opaque_product` (an integer OR with a zero XLA cannot prove to
+be zero, so no product is fused into a following add), sums are explicit ordered adds,
+divisions true divisions of same-shaped arrays, orientation flips negations. The Warp
+kernel (``kernels/sun_disk.py``) repeats these plain operations in the same order and
+equals this code bit for bit, exact ties included.
+
 Everything here is jit-compatible, uses uint32 with logical shifts, and has no Python
 int literal above 2**31 in traced code.
 """
@@ -52,6 +60,8 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from .brute_force import opaque_zero
 
 PAPER_CLAMP = 1e-4          # the paper's max(0.0001, sin(r) * |z|)
 PAPER_DISK_16X16 = (0x07E01FF8, 0x3FFC7FFE, 0x7FFEFFFF, 0xFFFFFFFF,
@@ -147,6 +157,33 @@ def unpack_words_np(words: np.ndarray, g: Grid) -> np.ndarray:
     return np.stack([hi, lo], -1).reshape(words.shape[:-1] + (g.rows,))
 
 
+# ------------------------------------------------------------------ rounding helpers
+
+def data_zero(x):
+    """int32 0 [] that XLA cannot prove to be 0 (1 if ``x`` holds a NaN).
+
+    The default ``zero`` of the primitives below; a caller running many of them in one
+    program computes it once (from an input whose NaN would spoil the result anyway) and
+    passes it on.
+    """
+    return opaque_zero(jnp.asarray(x)).astype(jnp.int32)
+
+
+def opaque_product(a, b, zero):
+    """a * b rounded once, opaque to FMA contraction (``brute_force.opaque_mul`` with the
+    zero cast to the product's integer width, so one int32 zero serves both precisions).
+    """
+    p = a * b
+    it = jnp.int64 if p.dtype == jnp.float64 else jnp.int32
+    return jax.lax.bitcast_convert_type(
+        jax.lax.bitcast_convert_type(p, it) | jnp.asarray(zero).astype(it), p.dtype)
+
+
+def _flip(x, neg):
+    """-x where ``neg``, else x (orientation flips as negations: exact, no product)."""
+    return jnp.where(neg, -x, x)
+
+
 # ------------------------------------------------------------------ traced bit operations
 
 def shr(x, k):
@@ -191,64 +228,78 @@ def popcount_list(words: list):
 # vectorizes badly over small trailing axes (3 vertices, 16 rows). The array versions
 # (edge_outside_rows, polygon_keep_rows, ...) wrap them for tests and notebooks.
 
-def edge_outside_list(a, b, c, g: Grid) -> list:
+def edge_outside_list(a, b, c, g: Grid, zero=None) -> list:
     """Cells of each scanline *outside* the half-plane a x + b y + c >= 0.
 
     On row r the edge function at column j is f0_r + A j (A = a * cell width); the
     columns inside are j >= t_r (A > 0) or j <= t_r (A < 0), t_r = -f0_r / A, linear in
-    the row's y: one reciprocal per edge, a multiply-add per row. The first column
+    the row's y: one division per edge, a multiply and an add per row. The first column
     inside (A > 0: ceil t) or outside (A < 0: floor t + 1) is a shift in [0, cols],
     cols <= 31, so no shift by 32 arises.
 
+    Rounding (the kernel repeats it): step = a w, base = a (-1 + w/2) + c,
+    inv = -1 / step (true division), t0 = base inv, dt = b inv, t_r = t0 + dt y_r; a
+    flat edge (step == 0) tests base + b y_r < 0. Every product is opaque.
+
     Args:
         a, b, c: float arrays [...] (same shape and dtype), one edge function each.
+        zero: int 0 [] from :func:`data_zero` (computed from ``a`` if None).
     Returns:
         ``rows`` uint32 arrays [...]: bit set = cell centre outside the edge's
         half-plane (a cell centre exactly on the edge is inside).
     """
+    if zero is None:
+        zero = data_zero(a)
+
+    def mul(x, y):
+        return opaque_product(x, y, zero)
+
     _, ys = g.centres()
     w = 2.0 / g.cols
     n = g.cols
-    step = a * w                                                  # f(j+1) - f(j)
-    base = a * (-1.0 + 0.5 * w) + c                               # f at column 0, y = 0
-    zero = step == 0
-    inv = jnp.where(zero, 0.0, -1.0 / jnp.where(zero, 1.0, step))
-    t0 = base * inv
-    dt = b * inv
+    step = mul(a, w)                                              # f(j+1) - f(j)
+    base = mul(a, -1.0 + 0.5 * w) + c                             # f at column 0, y = 0
+    flat = step == 0
+    inv = jnp.where(flat, 0.0, -1.0 / jnp.where(flat, 1.0, step))
+    t0 = mul(base, inv)
+    dt = mul(b, inv)
     rising = step > 0
     full = jnp.uint32(g.full_row)
     out = []
     for y in ys:
-        t = jnp.clip(t0 + dt * float(y), -1.0, n + 1.0)
+        t = jnp.clip(t0 + mul(dt, float(y)), -1.0, n + 1.0)
         t = jnp.where(t != t, float(n + 1), t)                     # NaN guard
         k = jnp.where(rising, jnp.ceil(t), jnp.floor(t) + 1.0)
         k = jnp.clip(k, 0.0, float(n)).astype(jnp.uint32)
         tail = jax.lax.shift_right_logical(full, k)                # columns k .. n-1
         sloped = jnp.where(rising, full ^ tail, tail)
-        flat = jnp.where(base + b * float(y) < 0, full, jnp.uint32(0))
-        out.append(jnp.where(zero, flat, sloped))
+        level = jnp.where(base + mul(b, float(y)) < 0, full, jnp.uint32(0))
+        out.append(jnp.where(flat, level, sloped))
     return out
 
 
-def edge_outside_rows(a, b, c, g: Grid):
+def edge_outside_rows(a, b, c, g: Grid, zero=None):
     """Array version of :func:`edge_outside_list`: uint32 [..., rows]."""
     a, b, c = jnp.broadcast_arrays(a, b, c)
-    return jnp.stack(edge_outside_list(a, b, c, g), -1)
+    return jnp.stack(edge_outside_list(a, b, c, g, zero), -1)
 
 
-def polygon_keep_list(edges: list, g: Grid, active=None) -> list:
+def polygon_keep_list(edges: list, g: Grid, active=None, zero=None) -> list:
     """Rows to AND into the grid for a convex polygon.
 
     Args:
         edges: list of (a, b, c) arrays [...]: inside where all a x + b y + c >= 0.
         active: optional bool [...]; inactive polygons keep every bit.
+        zero: int 0 [] (:func:`data_zero`), shared by all edges (computed if None).
     Returns:
         list of ``rows`` uint32 arrays [...]: bits cleared exactly at the cell centres
         inside the polygon.
     """
+    if zero is None:
+        zero = data_zero(edges[0][0])
     out = None
     for a, b, c in edges:
-        rows = edge_outside_list(a, b, c, g)
+        rows = edge_outside_list(a, b, c, g, zero)
         out = rows if out is None else [o | r for o, r in zip(out, rows)]
     if active is not None:
         full = jnp.uint32(g.full_row)
@@ -256,81 +307,116 @@ def polygon_keep_list(edges: list, g: Grid, active=None) -> list:
     return out
 
 
-def polygon_keep_rows(edges, g: Grid, active=None):
+def polygon_keep_rows(edges, g: Grid, active=None, zero=None):
     """Array version: edges float [..., E, 3] -> uint32 [..., rows]."""
     lst = [(edges[..., e, 0], edges[..., e, 1], edges[..., e, 2]) for e in range(edges.shape[-2])]
-    return jnp.stack(polygon_keep_list(lst, g, active), -1)
+    return jnp.stack(polygon_keep_list(lst, g, active, zero), -1)
 
 
 def visibility(words, g: Grid):
-    """float [...]: set bits of the grid words [..., W] over the disk's bit count."""
-    return popcount(words).astype(jnp.float32) / np.float32(g.disk_bits)
+    """float32 [...]: set bits of the grid words [..., W] over the disk's bit count.
+
+    Computed as popcount * fl(1 / disk_bits) (the reciprocal rounded once on the host),
+    which is what XLA makes of the division anyway; written out so the kernel can repeat it.
+    """
+    inv = np.float32(1.0) / np.float32(g.disk_bits)
+    return popcount(words).astype(jnp.float32) * inv
 
 
 # ------------------------------------------------------------------ projections
 
-def triangle_edges_list(px: list, py: list):
+def triangle_edges_list(px: list, py: list, zero=None):
     """Edge functions of 2-D triangles, oriented so the inside is >= 0.
+
+    Edge i (from vertex i to i+1): (-ey, ex, ey px_i - ex py_i); the signed area is
+    (c_0 + c_1) + c_2 with c_i = px_i py_{i+1} - px_{i+1} py_i; a negative area negates
+    the edges. Products opaque.
 
     Args:
         px, py: three arrays [...] each, the vertices' disk-space coordinates.
+        zero: int 0 [] (:func:`data_zero`; computed from ``px[0]`` if None).
     Returns:
         edges (a list of three (a, b, c) array triples) and ok bool [...] (non-zero
         signed area; degenerate triangles must be skipped).
     """
-    area = 0.0
+    if zero is None:
+        zero = data_zero(px[0])
+
+    def mul(x, y):
+        return opaque_product(x, y, zero)
+
+    terms = []
     edges = []
     for i in range(3):
         j = (i + 1) % 3
         ex, ey = px[j] - px[i], py[j] - py[i]
         # f_i(x, y) = ex * (y - p_y) - ey * (x - p_x)  (>= 0 left of the edge)
-        edges.append((-ey, ex, ey * px[i] - ex * py[i]))
-        area = area + (px[i] * py[j] - px[j] * py[i])
-    sign = jnp.sign(area)
-    return [(a * sign, b * sign, c * sign) for a, b, c in edges], area != 0
+        edges.append((-ey, ex, mul(ey, px[i]) - mul(ex, py[i])))
+        terms.append(mul(px[i], py[j]) - mul(px[j], py[i]))
+    area = (terms[0] + terms[1]) + terms[2]
+    neg = area < 0
+    return [(_flip(a, neg), _flip(b, neg), _flip(c, neg)) for a, b, c in edges], area != 0
 
 
-def triangle_edges_2d(p):
+def triangle_edges_2d(p, zero=None):
     """Array version: p float [..., 3, 2] -> edges [..., 3, 3], ok [...]."""
     edges, ok = triangle_edges_list([p[..., i, 0] for i in range(3)],
-                                    [p[..., i, 1] for i in range(3)])
+                                    [p[..., i, 1] for i in range(3)], zero)
     return jnp.stack([jnp.stack(e, -1) for e in edges], -2), ok
 
 
-def project_paper(d, s):
+def project_paper(d, s, zero=None):
     """The paper's projection of light-frame vectors into disk space.
 
     Args:
         d: float [..., 3] (x, y, z), +z towards the light, world units.
         s: float scalar or [...] broadcastable, the disk scale (sin or tan of the radius).
+        zero: int 0 [] (:func:`data_zero`; computed from ``d`` if None).
     Returns:
-        float [..., 2]: ``d.xy / max(1e-4, s * |d.z|)``.
+        float [..., 2]: ``d.xy / max(1e-4, s * |d.z|)``, as
+        :func:`project_paper_list` rounds it.
     """
-    den = jnp.maximum(PAPER_CLAMP, s * jnp.abs(d[..., 2]))
-    return d[..., :2] / den[..., None]
+    x, y = project_paper_list(d[..., 0], d[..., 1], d[..., 2], s,
+                              data_zero(d) if zero is None else zero)
+    return jnp.stack([x, y], -1)
 
 
-def project_paper_list(x, y, z, s):
-    """SoA :func:`project_paper` of one vertex: arrays [...] -> (X, Y)."""
+def project_paper_list(x, y, z, s, zero=None):
+    """SoA :func:`project_paper` of one vertex: arrays [...] -> (X, Y).
+
+    inv = 1 / max(1e-4, s |z|) (one true division), X = x inv, Y = y inv (opaque: they
+    feed the edge differences). s |z| only feeds the max, so it needs no care.
+    """
+    if zero is None:
+        zero = data_zero(x)
     inv = 1.0 / jnp.maximum(PAPER_CLAMP, s * jnp.abs(z))
-    return x * inv, y * inv
+    return opaque_product(x, inv, zero), opaque_product(y, inv, zero)
 
 
-def _cross(u, v):
-    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+def _mul(a, b):
+    return a * b
 
 
-def _dot(u, v):
-    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+def _cross(u, v, mul=_mul):
+    return (mul(u[1], v[2]) - mul(u[2], v[1]), mul(u[2], v[0]) - mul(u[0], v[2]),
+            mul(u[0], v[1]) - mul(u[1], v[0]))
 
 
-def homogeneous_edges_list(d: list, s, n_recv, eps, z_light=None):
+def _dot(u, v, mul=_mul):
+    return (mul(u[0], v[0]) + mul(u[1], v[1])) + mul(u[2], v[2])
+
+
+def homogeneous_edges_list(d: list, s, n_recv, eps, z_light=None, zero=None):
     """Exact disk-space edge functions of triangles seen from the fragment (SoA).
 
     A disk point (x, y) is the direction u = (s x, s y, 1). Inside = the ray from the
     fragment along u meets the triangle, at a point at least ``eps`` above the
     receiver's tangent plane and (if ``z_light`` is given) not beyond the light's
     silhouette disk at light-frame depth ``z_light``.
+
+    Rounding (the kernel repeats it): m_i = d_i x d_{i+1} and n_t = e1 x e2 as
+    a_j b_k - a_k b_j, det = (d2x m0x + d2y m0y) + d2z m0z, products opaque; a
+    negative det negates (no product by its sign).
 
     Args:
         d: three vertices, each a tuple of three arrays [...] (x, y, z): vertex minus
@@ -339,44 +425,62 @@ def homogeneous_edges_list(d: list, s, n_recv, eps, z_light=None):
         n_recv: tuple of three arrays [...], the receiver's unit normal (light frame).
         eps: receiver bias, world units (scalar).
         z_light: None (sun) or array [...], depth of the silhouette disk's plane.
+        zero: int 0 [] (:func:`data_zero`; computed from ``d[0][0]`` if None).
     Returns:
         edges (a list of 4 (sun) or 5 (sphere) (a, b, c) triples) and ok bool [...]
         (the fragment is not in the triangle's plane).
     """
-    m = [_cross(d[0], d[1]), _cross(d[1], d[2]), _cross(d[2], d[0])]
-    det = _dot(d[2], m[0])                                 # det(d0, d1, d2)
-    sg = jnp.sign(det)
+    if zero is None:
+        zero = data_zero(d[0][0])
+
+    def mul(x, y):
+        return opaque_product(x, y, zero)
+
+    m = [_cross(d[0], d[1], mul), _cross(d[1], d[2], mul), _cross(d[2], d[0], mul)]
+    det = _dot(d[2], m[0], mul)                            # det(d0, d1, d2)
+    neg = det < 0
 
     def lin(v):                                            # v . u as (a, b, c)
-        return (s * v[0], s * v[1], v[2])
+        return (mul(s, v[0]), mul(s, v[1]), v[2])
 
-    edges = [lin(tuple(sg * mi for mi in me)) for me in m]
+    edges = [lin(tuple(_flip(mi, neg) for mi in me)) for me in m]
     # hit point h = u * det / (n_t . u), n_t = (d1 - d0) x (d2 - d0), n_t . d0 = det.
     e1 = tuple(d[1][i] - d[0][i] for i in range(3))
     e2 = tuple(d[2][i] - d[0][i] for i in range(3))
-    n_t = _cross(e1, e2)
+    n_t = _cross(e1, e2, mul)
     # n_recv . h >= eps  <=>  |det| (n_recv . u) - eps sg (n_t . u) >= 0
     adet = jnp.abs(det)
-    edges.append(lin(tuple(adet * n_recv[i] - eps * sg * n_t[i] for i in range(3))))
+    es = jnp.where(neg, -eps, eps).astype(det.dtype)
+    edges.append(lin(tuple(mul(adet, n_recv[i]) - mul(es, n_t[i]) for i in range(3))))
     if z_light is not None:
         # h_z <= z_light  <=>  sg (z_light (n_t . u) - det) >= 0
-        a, b, c = lin(tuple(z_light * n_t[i] for i in range(3)))
-        edges.append((sg * a, sg * b, sg * (c - det)))
+        a, b, c = lin(tuple(mul(z_light, n_t[i]) for i in range(3)))
+        edges.append((_flip(a, neg), _flip(b, neg), _flip(c - det, neg)))
     return edges, det != 0
 
 
-def homogeneous_edges(d, s, n_recv, eps, z_light=None):
+def homogeneous_edges(d, s, n_recv, eps, z_light=None, zero=None):
     """Array version: d [..., 3, 3], n_recv [..., 3] -> edges [..., E, 3], ok [...]."""
     dl = [tuple(d[..., v, i] for i in range(3)) for v in range(3)]
     nl = tuple(n_recv[..., i] for i in range(3))
     s = jnp.broadcast_to(jnp.asarray(s, d.dtype), d.shape[:-2])
-    edges, ok = homogeneous_edges_list(dl, s, nl, eps, z_light)
+    edges, ok = homogeneous_edges_list(dl, s, nl, eps, z_light,
+                                       data_zero(d) if zero is None else zero)
     return jnp.stack([jnp.stack(jnp.broadcast_arrays(*e), -1) for e in edges], -2), ok
 
 
-def horizon_edge(n_recv, s):
+def horizon_edge_list(n_recv, s, zero=None):
+    """Edge (a, b, c) of the disk part above the receiver's tangent plane:
+    (s n_x, s n_y, n_z), n_recv a tuple of three arrays [...] (products opaque)."""
+    if zero is None:
+        zero = data_zero(n_recv[2])
+    return (opaque_product(s, n_recv[0], zero), opaque_product(s, n_recv[1], zero), n_recv[2])
+
+
+def horizon_edge(n_recv, s, zero=None):
     """Edge (a, b, c) [..., 3] of the disk part above the receiver's tangent plane."""
-    return jnp.stack([s * n_recv[..., 0], s * n_recv[..., 1], n_recv[..., 2]], axis=-1)
+    e = horizon_edge_list(tuple(n_recv[..., i] for i in range(3)), s, zero)
+    return jnp.stack(jnp.broadcast_arrays(*e), axis=-1)
 
 
 # ------------------------------------------------------------------ per-pixel rotation
