@@ -198,3 +198,121 @@ def test_jit_equals_eager():
         return sd.pack_rows(sd.polygon_keep_rows(e, g, ok), g)
 
     assert np.array_equal(np.asarray(f(tris)), np.asarray(jax.jit(f)(tris)))
+
+
+# ---------------------------------------------------------------- rounding, against NumPy
+
+def _np_outside_rows(a, b, c, g, dt):
+    """NumPy twin of edge_outside_list's rounding: plain ops in the same order."""
+    w, c0 = dt(2.0 / g.cols), dt(-1.0 + 0.5 * (2.0 / g.cols))
+    n, full = g.cols, np.uint32(g.full_row)
+    step = a * w
+    base = a * c0 + c
+    with np.errstate(all="ignore"):
+        inv = np.where(step == 0, dt(0), dt(-1) / np.where(step == 0, dt(1), step))
+        t0, dt_ = base * inv, b * inv
+        rows = []
+        for y in g.centres()[1].astype(dt):
+            t = t0 + dt_ * y
+            t = np.where(np.isnan(t), dt(n + 1), np.clip(t, dt(-1), dt(n + 1)))
+            k = np.clip(np.where(step > 0, np.ceil(t), np.floor(t) + 1), 0, n).astype(np.uint32)
+            tail = full >> k
+            level = np.where(base + b * y < 0, full, np.uint32(0))
+            rows.append(np.where(step == 0, level, np.where(step > 0, full ^ tail, tail)))
+    return rows
+
+
+def _np_edges(d, s, n, eps, zl, projection, dt):
+    """NumPy twin of project_paper + triangle_edges_list / homogeneous_edges_list."""
+    v = [[d[..., i, k] for k in range(3)] for i in range(3)]
+    if projection == "paper":
+        inv = [dt(1) / np.maximum(dt(1e-4), s * np.abs(v[i][2])) for i in range(3)]
+        px, py = [v[i][0] * inv[i] for i in range(3)], [v[i][1] * inv[i] for i in range(3)]
+        edges, terms = [], []
+        for i in range(3):
+            j = (i + 1) % 3
+            ex, ey = px[j] - px[i], py[j] - py[i]
+            edges.append([-ey, ex, ey * px[i] - ex * py[i]])
+            terms.append(px[i] * py[j] - px[j] * py[i])
+        det = (terms[0] + terms[1]) + terms[2]
+        return [[np.where(det < 0, -x, x) for x in e] for e in edges], det != 0
+
+    def cross(p, q):
+        return [p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2], p[0] * q[1] - p[1] * q[0]]
+
+    m = [cross(v[i], v[(i + 1) % 3]) for i in range(3)]
+    det = (v[2][0] * m[0][0] + v[2][1] * m[0][1]) + v[2][2] * m[0][2]
+    neg = det < 0
+
+    def flip(x):
+        return np.where(neg, -x, x)
+
+    edges = [[s * flip(mi[0]), s * flip(mi[1]), flip(mi[2])] for mi in m]
+    nt = cross([v[1][k] - v[0][k] for k in range(3)], [v[2][k] - v[0][k] for k in range(3)])
+    es = np.where(neg, -dt(eps), dt(eps))
+    rb = [np.abs(det) * n[..., k] - es * nt[k] for k in range(3)]
+    edges.append([s * rb[0], s * rb[1], rb[2]])
+    if zl is not None:
+        edges.append([flip(s * (zl * nt[0])), flip(s * (zl * nt[1])), flip(zl * nt[2] - det)])
+    return edges, det != 0
+
+
+def _tie_inputs(g, f=48, t=4, seed=0):
+    """Vertices on cell centres / boundaries with dyadic s and z (exact ties)."""
+    rng = np.random.default_rng(seed)
+    s = 2.0 ** -rng.integers(2, 5, f)
+    z = np.where(rng.uniform(size=(f, t, 3)) < 0.1, -1.0, 2.0 ** rng.integers(-1, 2, (f, t, 3)))
+    cells = np.stack([-1 + rng.integers(-2, 2 * g.cols + 3, (f, t, 3)) / g.cols,
+                      -1 + rng.integers(-2, 2 * g.rows + 3, (f, t, 3)) / g.rows], -1)
+    d = np.concatenate([cells * (s[:, None, None, None] * np.abs(z[..., None])), z[..., None]],
+                       -1)
+    nrm = rng.normal(size=(f, 3))
+    nrm[:, 2] = np.abs(nrm[:, 2]) + 0.3
+    return d, s, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), rng.uniform(2, 4, f)
+
+
+@pytest.mark.parametrize("name", ["16x16", "31x7"])
+@pytest.mark.parametrize("projection", ["paper", "homogeneous"])
+def test_rasterizer_rounding_equals_numpy_on_exact_ties(name, projection, precision):
+    """The JAX primitives, jitted into one program, round every bit-deciding value as the
+    plain NumPy sequence of the same operations (no FMA, no reassociation), so even cell
+    centres exactly on an edge land on the same side; horizon and sphere edge included."""
+    g = sd.grid(name)
+    dt = np.float64 if precision == "float64" else np.float32
+    d, s, nrm, zl = (x.astype(dt) for x in _tie_inputs(g))
+    sphere = projection == "homogeneous"
+    f_count, t_count = d.shape[:2]
+    sb, nb, zb = s[:, None], nrm[:, None, :], zl[:, None]
+
+    edges, ok = _np_edges(d, sb, nb, 1e-3, zb if sphere else None, projection, dt)
+    want = np.broadcast_to(g.disk_mask(), (f_count, g.words)).copy()
+    below = _np_outside_rows(s * nrm[:, 0], s * nrm[:, 1], nrm[:, 2], g, dt)
+    want &= ~sd.pack_rows_np(np.stack(below, -1), g)
+    out = None
+    for a, b, c in edges:
+        rows = _np_outside_rows(a, b, c, g, dt)
+        out = rows if out is None else [o | r for o, r in zip(out, rows)]
+    keep = sd.pack_rows_np(np.stack([np.where(ok, o, g.full_row) for o in out], -1), g)
+    for t in range(t_count):
+        want &= keep[:, t]
+
+    def run(d, s, nrm, zl):
+        zero = sd.data_zero(s)
+        words = jnp.broadcast_to(jnp.asarray(g.disk_mask()), (f_count, g.words))
+        he = sd.horizon_edge_list((nrm[:, 0], nrm[:, 1], nrm[:, 2]), s, zero)
+        words = words & ~sd.pack_rows(sd.edge_outside_rows(*he, g, zero), g)
+        sb = jnp.broadcast_to(s[:, None], (f_count, t_count))
+        if projection == "paper":
+            e, k = sd.triangle_edges_2d(sd.project_paper(d, sb[..., None], zero), zero)
+        else:
+            nb = jnp.broadcast_to(nrm[:, None], (f_count, t_count, 3))
+            e, k = sd.homogeneous_edges(d, sb, nb, 1e-3, zl[:, None] + 0 * sb, zero)
+        keep = sd.pack_rows(sd.polygon_keep_rows(e, g, k, zero), g)
+        for t in range(t_count):
+            words = words & keep[:, t]
+        return words
+
+    with jax.enable_x64(precision == "float64"):
+        got = np.asarray(jax.jit(run)(*(jnp.asarray(x) for x in (d, s, nrm, zl))))
+    assert np.array_equal(got, want)
+    assert 0 < (got != np.broadcast_to(g.disk_mask(), got.shape)).mean()   # something drawn

@@ -413,9 +413,12 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         pid, phalf, rel = pix["id"][tiles], pix["half"][tiles], pix["rel"][tiles]
         dtype = s.dtype
         shape = s.shape
+        # one opaque zero (NaN eps spoils everything anyway) for the sun_disk primitives'
+        # products: they round the same in every program (and as the Warp kernel)
+        zr = sd.data_zero(eps)
         words0 = [jnp.full(shape, wd, jnp.uint32) for wd in disk]
         if mode == "bitmask" and horizon:
-            below = sd.edge_outside_list(s * nrm[0], s * nrm[1], nrm[2], g)
+            below = sd.edge_outside_list(*sd.horizon_edge_list(nrm, s, zr), g, zr)
             words0 = [wd & ~b for wd, b in zip(words0, sd.pack_list(below, g))]
         blocked0 = jnp.zeros(shape, dtype)
         if mode == "overlap" and horizon:
@@ -436,7 +439,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             return d
 
         def projected(d):
-            q = [sd.project_paper_list(d[v][0], d[v][1], d[v][2], s) for v in range(3)]
+            q = [sd.project_paper_list(d[v][0], d[v][1], d[v][2], s, zr) for v in range(3)]
             return [q[v][0] for v in range(3)], [q[v][1] for v in range(3)]
 
         def quick_reject(d, qx, qy):
@@ -465,10 +468,11 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         def keep_words(d, qx, qy, mask):
             """The words to AND into the grid (every bit kept where ~mask)."""
             if projection == "paper":
-                edges, ok = sd.triangle_edges_list(qx, qy)
+                edges, ok = sd.triangle_edges_list(qx, qy, zr)
             else:
-                edges, ok = sd.homogeneous_edges_list(d, s, nrm, eps, zl if sphere else None)
-            return sd.pack_list(sd.polygon_keep_list(edges, g, mask & ok), g)
+                edges, ok = sd.homogeneous_edges_list(d, s, nrm, eps, zl if sphere else None,
+                                                      zr)
+            return sd.pack_list(sd.polygon_keep_list(edges, g, mask & ok, zr), g)
 
         def raster_pair(e, mask):
             """Keep words of triangle e [G, 256] (per pixel) where mask. Both paths go
