@@ -49,7 +49,7 @@ def _seed(*key):
     return zlib.crc32(repr(key).encode()) % 1000
 
 
-@pytest.mark.parametrize("grid", ["16x16", "31x3", "31x7", "31x31"])
+@pytest.mark.parametrize("grid", sd.GRID_NAMES)
 @pytest.mark.parametrize("projection,sphere,horizon", CASES)
 def test_kernel_equals_jax_bit_for_bit(grid, projection, sphere, horizon):
     d, s, n, active, zl = _inputs(_seed(grid, projection, sphere, horizon))
@@ -79,7 +79,7 @@ def _exact_ties(d, s, active, g):
     return int((ties & active[..., None, None]).sum())
 
 
-@pytest.mark.parametrize("grid", ["16x16", "31x3", "31x7", "31x31"])
+@pytest.mark.parametrize("grid", sd.GRID_NAMES)
 @pytest.mark.parametrize("projection,sphere,horizon", CASES)
 def test_exact_ties_equal(grid, projection, sphere, horizon):
     """Vertices snapped to cell centres and boundaries put cell centres exactly on edges,
