@@ -23,6 +23,7 @@ import statistics
 import numpy as np
 
 import shadowlab as sl
+from shadowlab.analysis.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
 
 METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
@@ -36,7 +37,7 @@ def run(cfg: dict) -> dict:
     sizes = list(cfg.get("stack_sizes", [4, 8, 12, 16, 24, 32, 48]))
     prec = cfg.get("precision", "float32")
     out = {k: [] for k in ("visited_maps", "stack_map", "valid", "mean_visited", "seconds",
-                           "mismatches", "overflow_pixels", "sweep_visited", "sweep_seconds",
+                           "mismatches", "unexplained", "overflow_pixels", "sweep_visited", "sweep_seconds",
                            "sweep_switches", "triangles", "reference_seconds")}
     for name in names:
         params = dict(cfg.get("params", {}).get(name, {}))
@@ -55,12 +56,13 @@ def run(cfg: dict) -> dict:
                                        **opts) for _ in range(repeats)]
             return runs[-1], statistics.median(r.timings["total"] for r in runs)
 
-        maps, means, secs, mism, ovf = [], [], [], [], []
+        maps, means, secs, mism, unex, ovf = [], [], [], [], [], []
         for m in METHODS:
             r, t = measure(m)
             ov = r.counters.get("stack_overflows_per_pixel")
             ok = gbuf.valid if ov is None else gbuf.valid & (ov == 0)
             mism.append(int(np.count_nonzero((r.lit != truth) & ok)))
+            unex.append(unexplained_count(scene, gbuf, view.light, r.lit, truth, ok))
             ovf.append(int(r.counters.get("overflow_pixels", 0)))
             maps.append(r.counters["visited_nodes_per_pixel"])
             means.append(r.counters["visited_nodes_mean"])
@@ -74,7 +76,7 @@ def run(cfg: dict) -> dict:
             ss.append(t)
             sw.append(r.counters["stackless_switches"])
         for key, val in (("visited_maps", maps), ("mean_visited", means), ("seconds", secs),
-                         ("mismatches", mism), ("overflow_pixels", ovf),
+                         ("mismatches", mism), ("unexplained", unex), ("overflow_pixels", ovf),
                          ("sweep_visited", sv), ("sweep_seconds", ss), ("sweep_switches", sw)):
             out[key].append(val)
         out["valid"].append(gbuf.valid)
@@ -124,8 +126,10 @@ def plot(arrays: dict):
 
 
 def check(arrays: dict, cfg: dict) -> None:
-    """Every query equals the reference (PSV where no overflow); depth never adds visits."""
-    assert np.all(arrays["mismatches"] == 0), arrays["mismatches"]
+    """Every query equals the reference (PSV where no overflow) up to the documented
+    boundary tolerance (no unexplained mismatch, docs/exactness.md); depth never adds
+    visits."""
+    assert np.all(arrays["unexplained"] == 0), (arrays["mismatches"], arrays["unexplained"])
     mv = arrays["mean_visited"]
     assert np.all(mv[:, 1] <= mv[:, 0] + 1e-9)            # D-PSV <= PSV
     assert np.all(arrays["sweep_switches"][:, -1] <= arrays["sweep_switches"][:, 0])

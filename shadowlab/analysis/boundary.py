@@ -108,3 +108,17 @@ def unexplained_mismatches(scene: Scene, gbuf: GBuffer, light: Light, lit: np.nd
     dist = boundary_distance(scene, gbuf, light, bad, shadow_eps, reach=tol)
     explained = (dist["edge"] <= tol) | (dist["cut"] <= CUT_TOLERANCE)
     return bad[~explained]
+
+
+def unexplained_count(scene: Scene, gbuf: GBuffer, light: Light, lit: np.ndarray,
+                      truth: np.ndarray, mask: np.ndarray | None = None,
+                      shadow_eps: float = 1e-5, limit: int = 200) -> int:
+    """How many mismatched pixels (valid, and inside ``mask`` bool [H, W] if given) lie
+    on no shadow boundary. Above ``limit`` mismatches none is examined and all count as
+    unexplained (an experiment's check then fails, as it should for so many)."""
+    keep = np.asarray(gbuf.valid if mask is None else gbuf.valid & mask, bool)
+    lit = np.where(keep, np.asarray(lit, bool), np.asarray(truth, bool))
+    wrong = int(np.count_nonzero(lit != np.asarray(truth, bool)))
+    if wrong == 0 or wrong > limit:
+        return wrong
+    return len(unexplained_mismatches(scene, gbuf, light, lit, truth, shadow_eps))
