@@ -12,18 +12,25 @@ def precision(request):
 
 
 def pytest_ignore_collect(collection_path, config):
-    """With ``-m "not kernels"`` the kernel test files are not even imported, so Warp
-    (and its bundled LLVM) is never loaded next to XLA in that process."""
-    expr = (config.getoption("markexpr", "") or "").split()
-    if expr == ["not", "kernels"] and collection_path.name.startswith("test_kernels"):
+    """Under a marker expression that excludes ``kernels`` the kernel test files are not
+    even imported, so Warp (and its bundled LLVM) never loads next to XLA there."""
+    expr = config.getoption("markexpr", "") or ""
+    if "not kernels" in expr and collection_path.name.startswith("test_kernels"):
         return True
     return None
 
 
+ISOLATED = {"test_soft_tiled": "soft", "test_sun_disk": "soft"}
+
+
 def pytest_collection_modifyitems(config, items):
-    """Tag the Warp kernel tests: the README test command runs them in a process of their
-    own, so Warp's bundled LLVM and XLA's never compile in the same process (a JAX
-    persistent-cache write crashed once after the kernel tests had run)."""
+    """Tag the tests the README test command runs in processes of their own: the Warp
+    kernel tests (Warp's bundled LLVM never loads next to XLA), and the soft-shadow tests
+    (``soft``): on a cold cache, XLA segfaults serializing one soft_tiled executable for
+    the persistent cache when the process has compiled the rest of the suite before
+    (reproduced twice; the same tests pass cold on their own). Not diagnosed further."""
     for item in items:
         if item.module.__name__.startswith("test_kernels"):
             item.add_marker(pytest.mark.kernels)
+        elif item.module.__name__ in ISOLATED:
+            item.add_marker(getattr(pytest.mark, ISOLATED[item.module.__name__]))
