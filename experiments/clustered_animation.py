@@ -205,12 +205,6 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
 
 # %%
 if __name__ == "__main__":
-    import tomllib
-    from pathlib import Path
+    from shadowlab.figures import run_as_script
 
-    config = tomllib.loads((Path(__file__).parent.parent / "configs" / "experiments"
-                            / "clustered_animation.ci.toml").read_text())
-    result = run(config)
-    check(result, config)
-    print(claims(result, config))
-    plot(result)
+    run_as_script(__file__)

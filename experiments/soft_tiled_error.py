@@ -220,11 +220,6 @@ def check(arrays: dict, cfg: dict) -> None:
 
 # %%
 if __name__ == "__main__":
-    import tomllib
-    from pathlib import Path
+    from shadowlab.figures import run_as_script
 
-    config = tomllib.loads((Path(__file__).parent.parent / "configs" / "experiments"
-                            / "soft_tiled_error.ci.toml").read_text())
-    result = run(config)
-    check(result, config)
-    plot(result)
+    run_as_script(__file__)

@@ -94,6 +94,21 @@ def load_experiment_config(root: Path, name: str, size: str) -> dict:
         raise ExperimentError(f"{path}: {exc}") from exc
 
 
+def run_as_script(file: str, size: str = "ci") -> dict:
+    """``python experiments/<name>.py``: run the experiment at ``size``, check it, print
+    its claims and draw the figure, writing nothing; return the arrays."""
+    path = Path(file).resolve()
+    module = load_module(path)
+    cfg = load_experiment_config(path.parent.parent, path.stem, size)
+    arrays = module.run(cfg)
+    if hasattr(module, "check"):
+        module.check(arrays, cfg)
+    for c in measure_claims(module, arrays, cfg):
+        print(f"[{'holds' if c['holds'] else 'FAILS'}] {c['claim']}: {c['measured']}")
+    module.plot(arrays)
+    return arrays
+
+
 def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = None) -> dict:
     """Run one experiment, write its figure, arrays and metadata; return the arrays."""
     module = load_module(discover(root)[name])
