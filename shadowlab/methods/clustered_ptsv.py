@@ -15,8 +15,10 @@ Sintorn, Kämpe, Olsson, Assarsson 2014. Stages (timed separately):
    ``brute_force`` (a test-and-set).
 4. ``merge``: samples inside a trivially accepted node are shadowed.
 
-The traversal engine here is generic over :class:`~.cluster_hierarchy.TreeLayout`;
-``ptsv`` (the 2011 baseline) runs the same engine over its 2D tile tree.
+Stage 3 runs the generic engine :mod:`shadowlab.engines.traversal` with the node and
+leaf tests of this module (:class:`PlaneNodeTests`), over any
+:class:`~.cluster_hierarchy.TreeLayout`; ``ptsv`` (the 2011 baseline) runs the same
+engine and tests over its 2D tile tree.
 
 Conservative node tests. A node is rejected only if its box is outside a plane by
 more than a tolerance covering float rounding of the post-perspective plane
@@ -44,16 +46,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..engines.traversal import traverse
 from ..geometry.morton import decode
 from ..scene.view import hard_light
-from ..timing import StageTimer, compiled
+from ..timing import StageTimer
 from . import cluster_hierarchy as ch
 from .brute_force import setup as world_setup
 from .common import (
     BIAS_MODES,
-    bias_terms,
     bucket,
-    cap_bias,
+    caster_terms,
     precision_mode,
     view_samples,
 )
@@ -241,164 +243,53 @@ def _leaf_chunk(cfg, a, tri, leaf, ok, tile_shadow, tile_tests):
     return tile_shadow, tile_tests
 
 
-LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop
-EXPAND_CHUNK = 2048      # frontier jobs per step of the expand loop
-SELECT_CHUNK = 4096      # output slots per step of the compaction loop
-MIN_FRONTIER = 4096      # smallest frontier bucket
 # smallest triangle / sample buckets: small scenes and images share compiled kernels
 MIN_TRIANGLES = 2048
 MIN_SAMPLES = 4096
 
 
-def _expand_level(cfg, level, a, st, acc_seen, tri, node, job, n):
-    """Expand a frontier (tri, node, job) [cap], n valid, at ``level`` (traced): test the
-    32 children of each job in chunks (a loop whose trip count follows n, so a generous
-    bucket costs memory, not time), count, record accepts (a row scatter-max) and
-    iterations, then compact the intersected children (job-major, child-minor) into
-    [cap] with a gather-only stream compaction: prefix sums of the per-job popcounts, a
-    binary search per output slot, a 5-step select of the r-th set bit. Returns the
-    state and the next frontier with its true size (> cap: overflow, retried by the
-    host)."""
-    cap = tri.shape[0]
-    e = min(cap, EXPAND_CHUNK)
-    iters_cap = st["iters"].shape[0]
-    row0 = a["off"]["masks"][level]
+@dataclasses.dataclass(frozen=True)
+class PlaneNodeTests:
+    """The shadow-volume node and leaf tests, as :class:`~shadowlab.engines.traversal.
+    NodeTests` for the traversal engine: items are triangles, nodes the hierarchy's keys,
+    ``data`` = (params, arrays) where params are the tree's camera floats
+    (:func:`tree_params`) and arrays the dict of :func:`flat_hierarchy` plus the planes,
+    tolerances, bounds and tile-major samples (see ``run_traversal_method``). The leaf
+    state is (tile_shadow bool [tiles, P], tile_tests int32 [tiles, P])."""
 
-    def body(i, carry):
-        words, end, total, counts, acc, iters = carry
-        s = i * e
-        t = jax.lax.dynamic_slice_in_dim(tri, s, e)
-        nd = jax.lax.dynamic_slice_in_dim(node, s, e)
-        jb = jax.lax.dynamic_slice_in_dim(job, s, e)
-        valid = s + jnp.arange(e) < n
-        exists, accept, basic, extra_rej, inter = _test_children(cfg, level, a, t, nd, valid,
-                                                                 acc_seen)
-        counts = counts + jnp.stack([
+    shape: ch.TreeLayout
+    axes: tuple[bool, bool, bool]
+    storage: str
+    extra: bool
+    prune: bool
+    cluster_only: bool
+    bias_reject: bool
+
+    counters = ("node_tests", "trivial_accepts", "trivial_rejects", "extra_plane_rejects")
+
+    @property
+    def levels(self) -> int:
+        return self.shape.levels
+
+    def prepare(self, data):
+        params, a = data
+        cfg = dict(tree=self.shape, ttree=_with_params(self.shape, params), axes=self.axes,
+                   storage=self.storage, extra=self.extra, prune=self.prune,
+                   cluster_only=self.cluster_only, bias_reject=self.bias_reject)
+        return cfg, a
+
+    def children(self, ctx, level, tri, node, valid, accepted):
+        cfg, a = ctx
+        exists, accept, basic, extra_rej, inter = _test_children(cfg, level, a, tri, node,
+                                                                 valid, accepted)
+        counts = jnp.stack([
             jnp.sum(exists), jnp.sum(accept), jnp.sum(exists & (basic | extra_rej)),
             jnp.sum(extra_rej)]).astype(jnp.int32)
-        rows = jnp.where(jnp.any(accept, axis=1), row0 + nd.astype(jnp.int32), acc.shape[0])
-        acc = acc.at[rows].max(accept, mode="drop")
-        iters = iters.at[jnp.where(valid, jb, iters_cap)].add(1, mode="drop")
-        w = jnp.sum(inter.astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32), axis=1,
-                    dtype=jnp.uint32)
-        chunk_end = total + jnp.cumsum(jax.lax.population_count(w).astype(jnp.int32))
-        words = jax.lax.dynamic_update_slice_in_dim(words, w, s, 0)
-        end = jax.lax.dynamic_update_slice_in_dim(end, chunk_end, s, 0)
-        return words, end, chunk_end[-1], counts, acc, iters
+        return accept, inter, counts
 
-    big = jnp.iinfo(jnp.int32).max
-    words, end, total, counts, acc, iters = jax.lax.fori_loop(
-        0, (n + e - 1) // e, body,
-        (jnp.zeros(cap, jnp.uint32), jnp.full(cap, big, jnp.int32), jnp.int32(0),
-         st["counts"], st["accepted"], st["iters"]))
-    st = dict(st, counts=counts, iters=iters, accepted=acc)
-    sc = min(cap, SELECT_CHUNK)
-
-    def select(i, carry):
-        ntri, nnode, njob = carry
-        q = i * sc + jnp.arange(sc, dtype=jnp.int32)
-        j = jnp.minimum(jnp.searchsorted(end, q, side="right"), cap - 1).astype(jnp.int32)
-        r = q - jnp.where(j > 0, end[jnp.maximum(j - 1, 0)], 0)
-        w = words[j]
-        pos = jnp.zeros(sc, jnp.uint32)
-        for width in (16, 8, 4, 2, 1):
-            c = jax.lax.population_count((w >> pos) & jnp.uint32((1 << width) - 1))
-            go = r >= c.astype(jnp.int32)
-            r = jnp.where(go, r - c.astype(jnp.int32), r)
-            pos = jnp.where(go, pos + jnp.uint32(width), pos)
-        ntri = jax.lax.dynamic_update_slice_in_dim(ntri, tri[j], i * sc, 0)
-        nnode = jax.lax.dynamic_update_slice_in_dim(nnode, (node[j] << 5) | pos, i * sc, 0)
-        njob = jax.lax.dynamic_update_slice_in_dim(njob, job[j], i * sc, 0)
-        return ntri, nnode, njob
-
-    m = jnp.minimum(total, cap)
-    ntri, nnode, njob = jax.lax.fori_loop(
-        0, (m + sc - 1) // sc, select,
-        (jnp.zeros(cap, jnp.int32), jnp.zeros(cap, jnp.uint32), jnp.zeros(cap, jnp.int32)))
-    return st, ntri, nnode, njob, total
-
-
-@functools.lru_cache(maxsize=64)
-def _pass_kernel(shape, axes, storage, extra, prune, cluster_only, bias_reject, level0, stop,
-                 cap,
-                 out_cap):
-    """A jitted traversal pass: waves of jobs from ``level0`` down to ``stop`` (push
-    (triangle, node) jobs at level ``stop``; stop > D: test the leaves). One call runs
-    every wave and level: no host round trip per level or per wave. One loop body
-    serves every inner level (the level is data), which keeps compile times short.
-
-    ``cap`` (a power of two) is the capacity of every frontier. A level whose frontier
-    would exceed it records a ``need`` above it (the extra entries are dropped and the
-    state is not used); the host then retries with a bigger bucket, so nothing is
-    truncated silently.
-    """
-    d = shape.levels
-    last = min(stop, d)
-
-    def run(params, jobs_tri, jobs_node, n_jobs, wave_size, a, accepted, tile_shadow,
-            tile_tests):
-        cfg = dict(tree=shape, ttree=_with_params(shape, params), axes=axes, storage=storage,
-                   extra=extra, prune=prune, cluster_only=cluster_only,
-                   bias_reject=bias_reject)
-        iters_cap = jobs_tri.shape[0]
-        st = dict(accepted=accepted, tile_shadow=tile_shadow, tile_tests=tile_tests,
-                  iters=jnp.zeros(iters_cap, jnp.int32), counts=jnp.zeros(4, jnp.int32),
-                  need=jnp.zeros(last - level0 + 1, jnp.int32), fmax=jnp.int32(0),
-                  leaf_visits=jnp.int32(0), out_n=jnp.int32(0),
-                  out_tri=jnp.zeros(out_cap + cap, jnp.int32),
-                  out_node=jnp.zeros(out_cap + cap, jnp.uint32))
-
-        def wave(w, st):
-            start = w * wave_size
-            tri = jax.lax.dynamic_slice_in_dim(jobs_tri, start, cap)
-            node = jax.lax.dynamic_slice_in_dim(jobs_node, start, cap)
-            job = start + jnp.arange(cap, dtype=jnp.int32)
-            n = jnp.minimum(n_jobs - start, wave_size).astype(jnp.int32)
-            # pruning sees the accepts of earlier waves only (a level's accepts come from
-            # its own expansion, so the wave's start state is the level's start state)
-            acc_seen = st["accepted"] if prune else None
-
-            def level_body(level, carry):
-                st, tri, node, job, n = carry
-                li = level - level0
-                st = dict(st, fmax=jnp.maximum(st["fmax"], n), need=st["need"].at[li].max(n))
-                st, tri, node, job, n = _expand_level(cfg, level, a, st, acc_seen, tri, node,
-                                                      job, jnp.minimum(n, cap))
-                return st, tri, node, job, n
-
-            st, tri, node, job, n = jax.lax.fori_loop(level0, last, level_body,
-                                                      (st, tri, node, job, n))
-            st = dict(st, fmax=jnp.maximum(st["fmax"], n),
-                      need=st["need"].at[last - level0].max(n))
-            n = jnp.minimum(n, cap)
-            if stop <= d:                                    # pass 1 of two: push jobs
-                o = jnp.minimum(st["out_n"], out_cap)
-                return dict(st, out_n=st["out_n"] + n,
-                            out_tri=jax.lax.dynamic_update_slice_in_dim(st["out_tri"], tri, o, 0),
-                            out_node=jax.lax.dynamic_update_slice_in_dim(st["out_node"], node,
-                                                                         o, 0))
-            chunk = min(cap, LEAF_CHUNK)                     # leaf test-and-sets
-            iters = st["iters"].at[jnp.where(jnp.arange(cap) < n, job, iters_cap)].add(
-                1, mode="drop")
-
-            def leaf_body(i, carry):
-                t = jax.lax.dynamic_slice_in_dim(tri, i * chunk, chunk)
-                k = jax.lax.dynamic_slice_in_dim(node, i * chunk, chunk)
-                ok = i * chunk + jnp.arange(chunk) < n
-                return _leaf_chunk(cfg, a, t, k, ok, *carry)
-
-            ts, tt = jax.lax.fori_loop(0, (n + chunk - 1) // chunk, leaf_body,
-                                       (st["tile_shadow"], st["tile_tests"]))
-            return dict(st, iters=iters, leaf_visits=st["leaf_visits"] + n, tile_shadow=ts,
-                        tile_tests=tt)
-
-        n_waves = (n_jobs + wave_size - 1) // wave_size
-        return jax.lax.fori_loop(0, n_waves, wave, st)
-
-    return jax.jit(run)
-
-
-_CAPS: dict = {}
+    def leaves(self, ctx, tri, leaf, ok, state):
+        cfg, a = ctx
+        return _leaf_chunk(cfg, a, tri, leaf, ok, *state)
 
 
 def level_offsets(tree: ch.TreeLayout) -> tuple[list[int], int]:
@@ -430,81 +321,6 @@ def flat_hierarchy(hier: ch.Hierarchy, tree: ch.TreeLayout, dtype) -> dict:
                 start=None if hier.start is None else jnp.concatenate(hier.start),
                 lo=jnp.concatenate(hier.lo), hi=jnp.concatenate(hier.hi),
                 smin=jnp.concatenate(hier.smin), off=off)
-
-
-def run_pass(timer, shape, params, opts, a, accepted, tile_shadow, tile_tests, jobs_tri,
-             jobs_node, n_jobs: int, level0: int, stop: int, wave: int | None, out_cap: int):
-    """One traversal pass (see :func:`_pass_kernel`), retried with a bigger frontier
-    bucket until nothing overflows. The bucket is remembered per tree shape and options
-    (it only grows), so later frames reuse the compiled kernel. ``jobs_*`` are host
-    arrays [n_jobs]. Returns the kernel's final state (device arrays) and out_cap."""
-    total = max(n_jobs, 1)
-    wave_size = min(wave, total) if wave else total
-    key = (shape, opts, level0, stop)
-    cap = max(_CAPS.get(key, 0), bucket(wave_size, minimum=MIN_FRONTIER))
-    while True:
-        n_waves = -(-total // wave_size)
-        length = bucket((n_waves - 1) * wave_size + cap, minimum=MIN_FRONTIER)
-        jt = np.zeros(length, np.int32)
-        jn = np.zeros(length, np.uint32)
-        jt[:n_jobs], jn[:n_jobs] = jobs_tri, jobs_node
-        kern = _pass_kernel(shape, *opts, level0, stop, cap, out_cap)
-        args = (params, jnp.asarray(jt), jnp.asarray(jn), jnp.int32(n_jobs),
-                jnp.int32(wave_size), a, accepted, tile_shadow, tile_tests)
-        exe, dt = compiled(kern, *args)
-        timer.times["traverse_compile"] = timer.times.get("traverse_compile", 0.0) + dt
-        st = exe(*args)
-        need = np.asarray(st["need"])
-        out_n = int(st["out_n"])
-        if need.max() <= cap and out_n <= out_cap:
-            break
-        # counts below a truncated level are underestimates: grow by 4x at least
-        if need.max() > cap:
-            cap = max(bucket(int(need.max()), minimum=MIN_FRONTIER), 4 * cap)
-        if out_n > out_cap:
-            out_cap = bucket(out_n, minimum=MIN_FRONTIER)
-    _CAPS[key] = cap
-    return st, out_cap
-
-
-def traverse(timer, shape, params, opts, a, casters: np.ndarray, accepted, tile_shadow,
-             tile_tests, *, passes: int, expand_level: int, wave: int | None):
-    """Pass 1 over the casters (and pass 2 over the (triangle, node) jobs it pushed).
-
-    Returns the final state (accepted, tile_shadow, tile_tests), iterations per pass-1
-    job (one per caster, in ``casters`` order) and per pass-2 job, the pass-2 jobs'
-    (triangle, node key) arrays, and the counters (node tests, accepts, rejects, extra
-    rejects, leaf visits, largest frontier)."""
-    d = shape.levels
-    stop = expand_level if passes == 2 else d + 1
-    key2 = ("out", shape, opts, expand_level)
-    out_cap = _CAPS.get(key2, MIN_FRONTIER) if passes == 2 else 0
-    st1, out_cap = run_pass(timer, shape, params, opts, a, accepted, tile_shadow, tile_tests,
-                            casters, np.zeros(len(casters), np.uint32), len(casters), 0, stop,
-                            wave, out_cap)
-    host = jax.device_get({k: st1[k] for k in ("iters", "counts", "fmax", "leaf_visits",
-                                                "out_n")})
-    iters1 = host["iters"][: len(casters)]
-    counts = host["counts"].astype(np.int64)
-    leaf_visits, fmax = int(host["leaf_visits"]), int(host["fmax"])
-    tri2 = np.zeros(0, np.int32)
-    nodes2 = np.zeros(0, np.uint32)
-    iters2 = np.zeros(0, np.int64)
-    st = st1
-    if passes == 2:
-        _CAPS[key2] = out_cap
-        m = int(host["out_n"])
-        tri2 = np.asarray(st1["out_tri"])[:m]
-        nodes2 = np.asarray(st1["out_node"])[:m]
-        st, _ = run_pass(timer, shape, params, opts, a, st1["accepted"], st1["tile_shadow"],
-                         st1["tile_tests"], tri2, nodes2, m, expand_level, d + 1, wave, 0)
-        h2 = jax.device_get({k: st[k] for k in ("iters", "counts", "fmax", "leaf_visits")})
-        iters2 = h2["iters"][:m]
-        counts += h2["counts"]
-        leaf_visits += int(h2["leaf_visits"])
-        fmax = max(fmax, int(h2["fmax"]))
-    stats = dict(counts=counts, leaf_visits=leaf_visits, frontier_max=fmax)
-    return st, iters1, iters2, tri2, nodes2, stats
 
 
 @functools.partial(jax.jit, static_argnames=("shape",))
@@ -600,12 +416,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         planes, valid = timer.run("setup", world_setup, jnp.asarray(tri),
                                   jnp.asarray(light_h.astype(dtype)))
         with timer.stage("setup"):
-            valid = np.array(valid)
-            valid[scene.num_triangles:] = False
-            planes4 = np.asarray(planes).reshape(-1, 4, 4)
-            scale, bound = bias_terms(samples, light_h, planes4, cap_bias(scene, shadow_eps),
-                                      bias)
-            bound = np.where(valid, bound, -np.inf).astype(dtype)
+            valid, _, scale, bound = caster_terms(scene, samples, light_h, planes, valid,
+                                                  shadow_eps, bias, dtype)
             culled = np.zeros(t_cap, bool)
             if front_face_culling:
                 culled[: scene.num_triangles] = front_face_culled(scene, light_h,
@@ -642,17 +454,19 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                           bound=jnp.asarray(bound), planes=planes, smax=sst["smax"], **tiles)
             accepted = jnp.zeros((level_offsets(tree)[1], 32), bool)
             p_tiles = tree.tiles_x * tree.tiles_y
-            opts = (axes, storage, extra != "none", bool(prune), leaf_samples == "cluster",
-                    bool(bias_reject))
-            st, iters1, iters2, tri2, key2, stats = traverse(
-                timer, shape, params, opts, arrays, casters, accepted,
-                jnp.zeros((p_tiles, tree.tile_pixels), bool),
-                jnp.zeros((p_tiles, tree.tile_pixels), jnp.int32), passes=passes,
-                expand_level=level_l, wave=wave if prune else None)
-            jax.block_until_ready(st["tile_shadow"])
+            tests_spec = PlaneNodeTests(shape, axes, storage, extra != "none", bool(prune),
+                                        leaf_samples == "cluster", bool(bias_reject))
+            run = traverse(tests_spec, (params, arrays), arrays["off"]["masks"], casters,
+                           accepted, (jnp.zeros((p_tiles, tree.tile_pixels), bool),
+                                      jnp.zeros((p_tiles, tree.tile_pixels), jnp.int32)),
+                           passes=passes, expand_level=level_l,
+                           wave=wave if prune else None, prune=bool(prune), timer=timer)
+            tile_shadow, tile_tests = run.leaf_state
+            jax.block_until_ready(tile_shadow)
+        iters1, iters2 = run.iterations_pass1, run.iterations_pass2
         with timer.stage("merge"):
-            shadow_d, ta_d, tests_d = _finish(shape, keys, svalid, slot, st["accepted"],
-                                              st["tile_shadow"], st["tile_tests"])
+            shadow_d, ta_d, tests_d = _finish(shape, keys, svalid, slot, run.accepted,
+                                              tile_shadow, tile_tests)
             shadow_all = np.asarray(shadow_d)[: samples.count]
             ta_only = np.asarray(ta_d)[: samples.count]
             tests = np.asarray(tests_d)[: samples.count].astype(np.int64)
@@ -667,18 +481,15 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         "front_face_culled": int(culled[: scene.num_triangles].sum()),
         "tests": int(tests.sum()),
         "tests_per_pixel": samples.scatter(tests, fill=0),
-        "node_tests": int(stats["counts"][0]),
-        "trivial_accepts": int(stats["counts"][1]),
-        "trivial_rejects": int(stats["counts"][2]),
-        "extra_plane_rejects": int(stats["counts"][3]),
-        "leaf_visits": int(stats["leaf_visits"]),
+        **{name: int(c) for name, c in zip(PlaneNodeTests.counters, run.counts)},
+        "leaf_visits": int(run.leaf_visits),
         "ta_shadowed": int(ta_only.sum()),
         "jobs": int(len(job_iters)),
         "pass2_jobs": int(len(iters2)),
         "job_iterations_mean": float(job_iters.mean()) if len(job_iters) else 0.0,
         "job_iterations_max": int(job_iters.max()) if len(job_iters) else 0,
         "job_iterations_top": top_jobs(job_iters),
-        "frontier_max": int(stats["frontier_max"]),
+        "frontier_max": int(run.frontier_max),
         "clusters": counts_h[-1],
         "hierarchy_nodes": sum(counts_h),
         "hierarchy_bytes": int(memory["mask_bytes"] + (
@@ -690,7 +501,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     }
     timings = dict(timer.times, total=timer.total)
     details = {"iterations_pass1": iters1, "iterations_pass2": iters2,
-               "pass2_triangles": tri2, "pass2_nodes": key2, "casters": casters,
+               "pass2_triangles": run.pass2_items, "pass2_nodes": run.pass2_nodes, "casters": casters,
                "tree": tree, "memory": memory, "hierarchy": hier, "g": g, "tol": tol,
                "bound": bound, "planes": planes, "scale": scale_d, "keys": keys,
                "table": table, "axes": axes, "extra": extra, "smax": sst["smax"],

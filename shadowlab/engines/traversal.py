@@ -1,0 +1,378 @@
+"""Level-synchronous traversal of 32-ary trees in fixed-capacity frontiers.
+
+The engine behind ``clustered_ptsv`` and ``ptsv``, generic over what a node is and how
+it is tested. Vocabulary:
+
+- a **tree** of depth ``D`` (``tests.levels``): level 0 is the root, a node at level
+  ``l`` has the uint32 key ``k``; its 32 children at level ``l + 1`` have the keys
+  ``(k << 5) | c``, c = 0..31 (so keys carry 5 bits per level). Whether a child exists
+  is for the test to say.
+- an **item**: an int32 payload (a triangle id for the shadow-volume methods) that is
+  tested against nodes;
+- a **job**: an (item, node) pair that starts a traversal. Each job has an index (its
+  position in the job list) and counts its *iterations* (levels expanded, plus one for
+  the leaf step);
+- a **frontier**: the (item, node, job) entries alive at one level, in arrays of a
+  fixed capacity ``cap`` (a power of two) plus a count ``n``; entries >= n are padding.
+
+One step at level ``l`` tests the 32 children of every frontier entry with
+``tests.children`` (chunks of :data:`EXPAND_CHUNK` entries, in a loop whose trip count
+follows ``n``, so a generous bucket costs memory, not time). Each child is one of:
+accepted (marked in ``accepted``, a bool [rows, 32] array with one row per inner node,
+``row_offsets[l]`` the first row of level ``l``), intersected (goes on to the next
+frontier) or anything else (dropped). The intersected children are compacted,
+entry-major and child-minor (so the order is deterministic), into the next frontier of
+the same capacity by a gather-only stream compaction: prefix sums of the entries'
+popcounts, a binary search per output slot, a 5-step select of the r-th set bit. At the
+last level the surviving entries are leaf jobs, handed to ``tests.leaves`` in chunks of
+:data:`LEAF_CHUNK`.
+
+Capacity: a level whose frontier would exceed ``cap`` records its true size in
+``need`` (the extra entries are dropped and the state is not used); :func:`run_pass`
+then retries with a bigger bucket (4x at least), so nothing is ever truncated silently.
+Buckets are remembered per (tests, options) and only grow, so later frames reuse the
+compiled kernel.
+
+Waves and pruning: jobs run in waves of ``wave`` jobs in job order. With ``prune`` the
+node test sees ``accepted`` as it was when the wave started (the accepts of earlier
+waves), so it can skip nodes that an earlier job already accepted; without it every job
+runs in one wave and the test sees nothing (``None``).
+
+Two passes: pass 1 runs the jobs from level 0 down to ``expand_level`` and pushes the
+surviving (item, node) entries, in the order it produced them, as the jobs of pass 2,
+which runs them down to the leaves.
+
+Counters: ``tests.children`` returns an int32 [K] increment per chunk (K =
+``len(tests.counters)``), summed over every level, wave and pass; the engine adds the
+leaf visits (leaf jobs), the largest frontier (entries) and per-job iterations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any, Protocol
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..methods.common import bucket
+from ..timing import compiled
+
+LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop
+EXPAND_CHUNK = 2048      # frontier entries per step of the expand loop
+SELECT_CHUNK = 4096      # output slots per step of the compaction loop
+MIN_FRONTIER = 4096      # smallest frontier bucket
+
+
+class NodeTests(Protocol):
+    """What a method supplies to the engine: a static, hashable description (the key of
+    the compiled kernels; array data travels separately as ``data``).
+
+    Attributes:
+        levels: depth D of the tree (leaves at level D).
+        counters: names of the K counters that :meth:`children` increments.
+    """
+
+    levels: int
+    counters: tuple[str, ...]
+
+    def prepare(self, data: Any) -> Any:
+        """Turn the traced ``data`` pytree into a context, once per kernel call."""
+
+    def children(self, ctx: Any, level, item, node, valid, accepted):
+        """Classify the 32 children of N frontier entries at ``level`` (a traced int32).
+
+        Args:
+            item: int32 [N]; node: uint32 [N] parent keys; valid: bool [N] (False for
+                padding entries, whose children must be neither accepted nor
+                intersected); accepted: bool [rows, 32] as the wave started, or None
+                without pruning.
+        Returns:
+            (accept, intersect, counts): bool [N, 32], bool [N, 32] and int32 [K].
+        """
+
+    def leaves(self, ctx: Any, item, node, ok, state):
+        """Process C leaf jobs: item int32 [C], node uint32 [C] leaf keys, ok bool [C]
+        (False: padding). ``state`` is the leaf state pytree; returns the new one."""
+
+
+def _expand_level(tests, ctx, level, row_offsets, st, acc_seen, item, node, job, n):
+    """Expand a frontier (item, node, job) [cap], n valid, at ``level`` (traced): test the
+    children of each entry in chunks, add the counters, record accepts (a row
+    scatter-max into ``st["accepted"]``) and iterations, then compact the intersected
+    children into [cap]. Returns the state and the next frontier with its true size
+    (> cap: overflow, retried by the host)."""
+    cap = item.shape[0]
+    e = min(cap, EXPAND_CHUNK)
+    iters_cap = st["iters"].shape[0]
+    row0 = row_offsets[level]
+
+    def body(i, carry):
+        words, end, total, counts, acc, iters = carry
+        s = i * e
+        t = jax.lax.dynamic_slice_in_dim(item, s, e)
+        nd = jax.lax.dynamic_slice_in_dim(node, s, e)
+        jb = jax.lax.dynamic_slice_in_dim(job, s, e)
+        valid = s + jnp.arange(e) < n
+        accept, inter, increment = tests.children(ctx, level, t, nd, valid, acc_seen)
+        counts = counts + increment
+        rows = jnp.where(jnp.any(accept, axis=1), row0 + nd.astype(jnp.int32), acc.shape[0])
+        acc = acc.at[rows].max(accept, mode="drop")
+        iters = iters.at[jnp.where(valid, jb, iters_cap)].add(1, mode="drop")
+        w = jnp.sum(inter.astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32), axis=1,
+                    dtype=jnp.uint32)
+        chunk_end = total + jnp.cumsum(jax.lax.population_count(w).astype(jnp.int32))
+        words = jax.lax.dynamic_update_slice_in_dim(words, w, s, 0)
+        end = jax.lax.dynamic_update_slice_in_dim(end, chunk_end, s, 0)
+        return words, end, chunk_end[-1], counts, acc, iters
+
+    big = jnp.iinfo(jnp.int32).max
+    words, end, total, counts, acc, iters = jax.lax.fori_loop(
+        0, (n + e - 1) // e, body,
+        (jnp.zeros(cap, jnp.uint32), jnp.full(cap, big, jnp.int32), jnp.int32(0),
+         st["counts"], st["accepted"], st["iters"]))
+    st = dict(st, counts=counts, iters=iters, accepted=acc)
+    nitem, nnode, njob = compact_children(words, end, total, item, node, job)
+    return st, nitem, nnode, njob, total
+
+
+def compact_children(words, end, total, item, node, job):
+    """Stream compaction of the set children of a frontier, entry-major, child-minor.
+
+    Args:
+        words: uint32 [cap], bit c set if child c of entry j goes on; end: int32 [cap],
+            inclusive prefix sums of the popcounts (int32 max past the last tested
+            entry); total: int32, the number of set bits; item, node, job: [cap].
+    Returns:
+        item int32 [cap], node uint32 [cap] (the child keys ``(node << 5) | c``) and job
+        int32 [cap] of the first min(total, cap) set bits; later slots are zero.
+    """
+    cap = item.shape[0]
+    sc = min(cap, SELECT_CHUNK)
+
+    def select(i, carry):
+        ntri, nnode, njob = carry
+        q = i * sc + jnp.arange(sc, dtype=jnp.int32)
+        j = jnp.minimum(jnp.searchsorted(end, q, side="right"), cap - 1).astype(jnp.int32)
+        r = q - jnp.where(j > 0, end[jnp.maximum(j - 1, 0)], 0)
+        w = words[j]
+        pos = jnp.zeros(sc, jnp.uint32)
+        for width in (16, 8, 4, 2, 1):
+            c = jax.lax.population_count((w >> pos) & jnp.uint32((1 << width) - 1))
+            go = r >= c.astype(jnp.int32)
+            r = jnp.where(go, r - c.astype(jnp.int32), r)
+            pos = jnp.where(go, pos + jnp.uint32(width), pos)
+        ntri = jax.lax.dynamic_update_slice_in_dim(ntri, item[j], i * sc, 0)
+        nnode = jax.lax.dynamic_update_slice_in_dim(nnode, (node[j] << 5) | pos, i * sc, 0)
+        njob = jax.lax.dynamic_update_slice_in_dim(njob, job[j], i * sc, 0)
+        return ntri, nnode, njob
+
+    m = jnp.minimum(total, cap)
+    return jax.lax.fori_loop(
+        0, (m + sc - 1) // sc, select,
+        (jnp.zeros(cap, jnp.int32), jnp.zeros(cap, jnp.uint32), jnp.zeros(cap, jnp.int32)))
+
+
+@functools.lru_cache(maxsize=64)
+def pass_kernel(tests: NodeTests, prune: bool, level0: int, stop: int, cap: int,
+                out_cap: int):
+    """A jitted traversal pass: waves of jobs from ``level0`` down to ``stop`` (stop <= D:
+    push the surviving (item, node) entries at level ``stop``; stop > D: run the leaf
+    jobs). One call runs every wave and level: no host round trip per level or per wave.
+    One loop body serves every inner level (the level is data), which keeps compile
+    times short.
+
+    The returned function takes (data, row_offsets int32 [D], jobs_item int32 [J],
+    jobs_node uint32 [J], n_jobs, wave_size, accepted bool [rows, 32], leaf_state), J >=
+    (waves - 1) * wave_size + cap, and returns the state dict: accepted, leaf, iters
+    int32 [J] (per job), counts int32 [K], need int32 [levels of the pass + 1] (largest
+    frontier per level: > cap means overflow), fmax, leaf_visits, out_n and the pushed
+    entries out_item / out_node [out_cap + cap].
+    """
+    d = tests.levels
+    last = min(stop, d)
+
+    def run(data, row_offsets, jobs_item, jobs_node, n_jobs, wave_size, accepted,
+            leaf_state):
+        ctx = tests.prepare(data)
+        iters_cap = jobs_item.shape[0]
+        st = dict(accepted=accepted, leaf=leaf_state,
+                  iters=jnp.zeros(iters_cap, jnp.int32),
+                  counts=jnp.zeros(len(tests.counters), jnp.int32),
+                  need=jnp.zeros(last - level0 + 1, jnp.int32), fmax=jnp.int32(0),
+                  leaf_visits=jnp.int32(0), out_n=jnp.int32(0),
+                  out_item=jnp.zeros(out_cap + cap, jnp.int32),
+                  out_node=jnp.zeros(out_cap + cap, jnp.uint32))
+
+        def wave(w, st):
+            start = w * wave_size
+            item = jax.lax.dynamic_slice_in_dim(jobs_item, start, cap)
+            node = jax.lax.dynamic_slice_in_dim(jobs_node, start, cap)
+            job = start + jnp.arange(cap, dtype=jnp.int32)
+            n = jnp.minimum(n_jobs - start, wave_size).astype(jnp.int32)
+            # pruning sees the accepts of earlier waves only (a level's accepts come from
+            # its own expansion, so the wave's start state is the level's start state)
+            acc_seen = st["accepted"] if prune else None
+
+            def level_body(level, carry):
+                st, item, node, job, n = carry
+                li = level - level0
+                st = dict(st, fmax=jnp.maximum(st["fmax"], n), need=st["need"].at[li].max(n))
+                st, item, node, job, n = _expand_level(tests, ctx, level, row_offsets, st,
+                                                       acc_seen, item, node, job,
+                                                       jnp.minimum(n, cap))
+                return st, item, node, job, n
+
+            st, item, node, job, n = jax.lax.fori_loop(level0, last, level_body,
+                                                       (st, item, node, job, n))
+            st = dict(st, fmax=jnp.maximum(st["fmax"], n),
+                      need=st["need"].at[last - level0].max(n))
+            n = jnp.minimum(n, cap)
+            if stop <= d:                                    # pass 1 of two: push jobs
+                o = jnp.minimum(st["out_n"], out_cap)
+                return dict(st, out_n=st["out_n"] + n,
+                            out_item=jax.lax.dynamic_update_slice_in_dim(st["out_item"], item,
+                                                                         o, 0),
+                            out_node=jax.lax.dynamic_update_slice_in_dim(st["out_node"], node,
+                                                                         o, 0))
+            chunk = min(cap, LEAF_CHUNK)                     # leaf jobs
+            iters = st["iters"].at[jnp.where(jnp.arange(cap) < n, job, iters_cap)].add(
+                1, mode="drop")
+
+            def leaf_body(i, carry):
+                t = jax.lax.dynamic_slice_in_dim(item, i * chunk, chunk)
+                k = jax.lax.dynamic_slice_in_dim(node, i * chunk, chunk)
+                ok = i * chunk + jnp.arange(chunk) < n
+                return tests.leaves(ctx, t, k, ok, carry)
+
+            leaf = jax.lax.fori_loop(0, (n + chunk - 1) // chunk, leaf_body, st["leaf"])
+            return dict(st, iters=iters, leaf_visits=st["leaf_visits"] + n, leaf=leaf)
+
+        n_waves = (n_jobs + wave_size - 1) // wave_size
+        return jax.lax.fori_loop(0, n_waves, wave, st)
+
+    return jax.jit(run)
+
+
+_CAPS: dict = {}
+
+
+def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_item: np.ndarray,
+             jobs_node: np.ndarray, n_jobs: int, *, level0: int, stop: int,
+             wave: int | None, prune: bool, out_cap: int, timer=None,
+             compile_stage: str = "traverse_compile"):
+    """One traversal pass (see :func:`pass_kernel`), retried with a bigger frontier
+    bucket until nothing overflows.
+
+    Args:
+        jobs_item, jobs_node: host arrays [n_jobs] (int32 items, uint32 keys at
+            ``level0``). wave: jobs per wave (None: one wave). out_cap: capacity for
+            pushed entries (grown on overflow). timer: a ``StageTimer`` whose
+            ``compile_stage`` accumulates compile seconds (or None).
+    Returns:
+        the kernel's final state (device arrays, see :func:`pass_kernel`) and out_cap.
+    """
+    total = max(n_jobs, 1)
+    wave_size = min(wave, total) if wave else total
+    key = (tests, prune, level0, stop)
+    cap = max(_CAPS.get(key, 0), bucket(wave_size, minimum=MIN_FRONTIER))
+    while True:
+        n_waves = -(-total // wave_size)
+        length = bucket((n_waves - 1) * wave_size + cap, minimum=MIN_FRONTIER)
+        jt = np.zeros(length, np.int32)
+        jn = np.zeros(length, np.uint32)
+        jt[:n_jobs], jn[:n_jobs] = jobs_item, jobs_node
+        kern = pass_kernel(tests, prune, level0, stop, cap, out_cap)
+        args = (data, row_offsets, jnp.asarray(jt), jnp.asarray(jn), jnp.int32(n_jobs),
+                jnp.int32(wave_size), accepted, leaf_state)
+        exe, dt = compiled(kern, *args)
+        if timer is not None:
+            timer.times[compile_stage] = timer.times.get(compile_stage, 0.0) + dt
+        st = exe(*args)
+        need = np.asarray(st["need"])
+        out_n = int(st["out_n"])
+        if need.max() <= cap and out_n <= out_cap:
+            break
+        # counts below a truncated level are underestimates: grow by 4x at least
+        if need.max() > cap:
+            cap = max(bucket(int(need.max()), minimum=MIN_FRONTIER), 4 * cap)
+        if out_n > out_cap:
+            out_cap = bucket(out_n, minimum=MIN_FRONTIER)
+    _CAPS[key] = cap
+    return st, out_cap
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Traversal:
+    """What :func:`traverse` returns.
+
+    Attributes:
+        accepted: bool [rows, 32] device array, the accepted children per inner node.
+        leaf_state: the final leaf state pytree (device arrays).
+        iterations_pass1: int [jobs] per pass-1 job, in job order.
+        iterations_pass2: int [pass-2 jobs] (empty with one pass).
+        pass2_items: int32 [pass-2 jobs]; pass2_nodes: uint32 [pass-2 jobs] keys at
+            ``expand_level``.
+        counts: int64 [K], the node test counters (names: ``tests.counters``).
+        leaf_visits: leaf jobs run; frontier_max: the largest frontier (entries).
+    """
+
+    accepted: Any
+    leaf_state: Any
+    iterations_pass1: np.ndarray
+    iterations_pass2: np.ndarray
+    pass2_items: np.ndarray
+    pass2_nodes: np.ndarray
+    counts: np.ndarray
+    leaf_visits: int
+    frontier_max: int
+
+
+def traverse(tests: NodeTests, data, row_offsets, items: np.ndarray, accepted, leaf_state, *,
+             passes: int, expand_level: int, wave: int | None, prune: bool,
+             timer=None) -> Traversal:
+    """Traverse one job per item from the root (pass 1) and, with ``passes=2``, the
+    (item, node) jobs pass 1 pushed at ``expand_level`` (pass 2) down to the leaves.
+
+    Args:
+        tests: the node tests (static, hashable). data: the arrays they read (a pytree).
+        row_offsets: int32 [D] first row of each level in ``accepted``.
+        items: int32 [J] host array, one root job per item, in job order.
+        accepted: bool [rows, 32] initial accepts; leaf_state: initial leaf pytree.
+        passes: 1 or 2; expand_level: the level where pass 1 stops (1..D).
+        wave: jobs per wave (None: one wave); prune: the node test sees earlier waves'
+            accepts.
+    """
+    d = tests.levels
+    stop = expand_level if passes == 2 else d + 1
+    key2 = ("out", tests, prune, expand_level)
+    out_cap = _CAPS.get(key2, MIN_FRONTIER) if passes == 2 else 0
+    st1, out_cap = run_pass(tests, data, row_offsets, accepted, leaf_state, items,
+                            np.zeros(len(items), np.uint32), len(items), level0=0, stop=stop,
+                            wave=wave, prune=prune, out_cap=out_cap, timer=timer)
+    host = jax.device_get({k: st1[k] for k in ("iters", "counts", "fmax", "leaf_visits",
+                                                "out_n")})
+    iters1 = host["iters"][: len(items)]
+    counts = host["counts"].astype(np.int64)
+    leaf_visits, fmax = int(host["leaf_visits"]), int(host["fmax"])
+    items2 = np.zeros(0, np.int32)
+    nodes2 = np.zeros(0, np.uint32)
+    iters2 = np.zeros(0, np.int64)
+    st = st1
+    if passes == 2:
+        _CAPS[key2] = out_cap
+        m = int(host["out_n"])
+        items2 = np.asarray(st1["out_item"])[:m]
+        nodes2 = np.asarray(st1["out_node"])[:m]
+        st, _ = run_pass(tests, data, row_offsets, st1["accepted"], st1["leaf"], items2,
+                         nodes2, m, level0=expand_level, stop=d + 1, wave=wave, prune=prune,
+                         out_cap=0, timer=timer)
+        h2 = jax.device_get({k: st[k] for k in ("iters", "counts", "fmax", "leaf_visits")})
+        iters2 = h2["iters"][:m]
+        counts += h2["counts"]
+        leaf_visits += int(h2["leaf_visits"])
+        fmax = max(fmax, int(h2["fmax"]))
+    return Traversal(st["accepted"], st["leaf"], iters1, iters2, items2, nodes2, counts,
+                     leaf_visits, fmax)
