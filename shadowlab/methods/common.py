@@ -120,3 +120,23 @@ def bias_terms(samples: Samples, light_h: np.ndarray, planes: np.ndarray, eps: f
 def cap_bias(scene: Scene, shadow_eps: float) -> float:
     """The bias ``eps`` in world units (same offset as the Embree reference)."""
     return shadow_epsilon(scene, shadow_eps)
+
+
+def caster_terms(scene: Scene, samples: Samples, light_h: np.ndarray, planes, valid,
+                 shadow_eps: float, bias: str, dtype):
+    """The casters of a padded triangle setup and their self-shadowing bias terms.
+
+    Args:
+        planes: [T, 16] (or [T, 4, 4]) planes of the triangle setup of T >=
+            ``scene.num_triangles`` triangles (rows past the scene's are padding);
+        valid: bool [T] non-degenerate flags of the same setup; light_h: float64 [4].
+    Returns:
+        valid: bool [T] NumPy, False for padding rows; planes4: [T, 4, 4] NumPy, the
+        planes' dtype; scale: float64 [S] per-sample bias scale; bound: [T] in ``dtype``,
+        -inf where not valid (see :func:`bias_terms`).
+    """
+    valid = np.array(valid)
+    valid[scene.num_triangles:] = False
+    planes4 = np.asarray(planes).reshape(-1, 4, 4)
+    scale, bound = bias_terms(samples, light_h, planes4, cap_bias(scene, shadow_eps), bias)
+    return valid, planes4, scale, np.where(valid, bound, -np.inf).astype(dtype)

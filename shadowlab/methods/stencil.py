@@ -32,7 +32,7 @@ import numpy as np
 from ..scene.view import hard_light
 from ..timing import StageTimer
 from .brute_force import setup
-from .common import BIAS_MODES, bias_terms, bucket, cap_bias, precision_mode, view_samples
+from .common import BIAS_MODES, bucket, caster_terms, precision_mode, view_samples
 from .registry import Option, register
 from .result import ShadowResult
 
@@ -104,11 +104,8 @@ def _stencil(scene, gbuf, light, *, zfail, precision, shadow_eps, chunk, bias):
         planes, valid = timer.run("setup", setup, jnp.asarray(tri),
                                   jnp.asarray(light_h.astype(dtype)))
         with timer.stage("bias"):
-            valid = np.array(valid)
-            valid[scene.num_triangles:] = False
-            p4 = np.asarray(planes).reshape(-1, 4, 4)
-            scale, bound = bias_terms(samples, light_h, p4, cap_bias(scene, shadow_eps), bias)
-            bound = np.where(valid, bound, -np.inf).astype(dtype)
+            valid, p4, scale, bound = caster_terms(scene, samples, light_h, planes, valid,
+                                                   shadow_eps, bias, dtype)
             at_eye = (p4[..., :3].astype(np.float64) @ cam.eye + p4[..., 3]).astype(dtype)
             eye_in = int(np.sum(valid & np.all(at_eye[:, :3] >= 0, axis=1) & (at_eye[:, 3] < 0)))
             depth = gbuf.depth.reshape(-1)[samples.index]
