@@ -501,7 +501,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     }
     timings = dict(timer.times, total=timer.total)
     details = {"iterations_pass1": iters1, "iterations_pass2": iters2,
-               "pass2_triangles": run.pass2_items, "pass2_nodes": run.pass2_nodes, "casters": casters,
+               "pass2_triangles": run.pass2_items, "pass2_nodes": run.pass2_nodes,
+               "casters": casters,
                "tree": tree, "memory": memory, "hierarchy": hier, "g": g, "tol": tol,
                "bound": bound, "planes": planes, "scale": scale_d, "keys": keys,
                "table": table, "axes": axes, "extra": extra, "smax": sst["smax"],

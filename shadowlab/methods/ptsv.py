@@ -5,7 +5,8 @@ The baseline of Sintorn et al. 2014, modelled as that paper describes it: a full
 whose inner nodes alternate 4 x 8 and 8 x 4 children (32 x 32, 256 x 128, 1024 x 1024
 pixels at 1024 x 1024), each node bounded by its 2D tile rectangle and the min / max
 depth of its samples (a hierarchical depth buffer). Triangles are traversed with the
-same engine, planes and exact leaf test as ``clustered_ptsv``; the extra culling
+same engine (:mod:`shadowlab.engines.traversal`), node tests, planes and exact leaf test
+as ``clustered_ptsv`` (its ``run_traversal_method`` with ``kind="ptsv"``); the extra culling
 planes are PTSV's two 2D silhouette edges of the shadow volume (option
 ``culling_planes``). Empty tiles (no view sample) are absent from the tree.
 """
