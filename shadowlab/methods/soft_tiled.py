@@ -26,6 +26,11 @@ bits. Triangles reach a pixel through two culling passes:
    with ``on_overflow="truncate"`` it keeps the first ``capacity`` entries (the paper,
    whose result there is wrong and flagged), with ``"full"`` it evaluates them all.
 
+The cones and their tests live in :mod:`shadowlab.structures.cones`, the tiles, their
+bounds and the lists with capacity in :mod:`shadowlab.structures.tile_lists` (settings:
+:class:`~shadowlab.structures.tile_lists.CullSettings`); this module gathers, then
+evaluates the lists.
+
 The light: a sun (direction, angular radius r; disk scale s = tan r) or a sphere
 (position, radius R): seen from a fragment at distance D its silhouette is the disk of
 angular radius asin(R / D) around the direction to its centre, in the plane at depth
@@ -40,6 +45,7 @@ pixel whose grid is empty stops. See docs/soft_tiled.md.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import weakref
@@ -50,15 +56,22 @@ import numpy as np
 
 from ..raycast import shadow_epsilon
 from ..scene.view import SphereLight
+from ..structures.cones import blocker_cones, cones_in_frustum, pad_cones
+from ..structures.tile_lists import (
+    TILE,
+    CullSettings,
+    build_tile_lists,
+    capsule_to_sphere,
+    tile_bounds,
+    tile_layout,
+)
 from ..timing import StageTimer
 from . import sun_disk as sd
 from .common import bucket, precision_mode
 from .registry import Option, register
 from .result import ShadowResult
 
-TILE = 16
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
-GOLDEN_ITERS = 16
 DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)
 
 
@@ -94,163 +107,6 @@ def build_clusters(scene, size: int) -> np.ndarray:
     ids[:n] = order
     per_scene[size] = ids.reshape(c, size)
     return per_scene[size]
-
-
-# ------------------------------------------------------------------ cones
-
-def blocker_cones(tri: np.ndarray, groups: np.ndarray | None, light: SphereLight,
-                  ) -> dict[str, np.ndarray]:
-    """Truncated cones bounding what each blocker can shadow (float64, NumPy).
-
-    Args:
-        tri: float64 [T, 3, 3] triangles.
-        groups: None (one cone per triangle) or int [C, k] triangle ids (-1 = none),
-            one cone per group.
-    Returns:
-        dict of apex [n, 3], axis [n, 3] (unit, away from the light), sin [n], cos [n],
-        t0 [n] (points p with p . axis < t0 are never shadowed), always bool [n]
-        (no finite cone: the blocker is too close to a sphere light).
-    """
-    if groups is None:
-        pts = tri                                              # [n, 3, 3]
-        mask = np.ones(tri.shape[:2], bool)
-    else:
-        pts = tri[np.maximum(groups, 0)].reshape(len(groups), -1, 3)
-        mask = np.repeat(groups >= 0, 3, axis=1)
-    big = np.where(mask[..., None], pts, np.nan)
-    lo = np.nanmin(big, axis=1)
-    hi = np.nanmax(big, axis=1)
-    centre = 0.5 * (lo + hi)
-    rho = np.sqrt(np.nanmax(((big - centre[:, None]) ** 2).sum(-1), axis=1))
-    rho = rho * (1 + 1e-6) + 1e-9
-    n = len(centre)
-    if light.is_sun:
-        axis = np.broadcast_to(light.direction, (n, 3)).copy()
-        r = math.radians(light.angular_radius_deg)
-        sin_a = np.full(n, math.sin(r))
-        apex = centre - axis * (rho / sin_a)[:, None]
-        always = np.zeros(n, bool)
-    else:
-        L = light.position
-        to_c = centre - L
-        dist = np.linalg.norm(to_c, axis=1)
-        axis = to_c / np.maximum(dist, 1e-300)[:, None]
-        R = light.radius
-        always = R + rho >= dist
-        sin_a = np.where(always, 1.0, (R + rho) / np.maximum(dist, 1e-300))
-        apex = (rho[:, None] * L + R * centre) / (R + rho)[:, None]
-    cos_a = np.sqrt(np.maximum(1 - sin_a ** 2, 0))
-    proj = np.einsum("nki,ni->nk", np.where(mask[..., None], pts, 0.0), axis)
-    t0 = np.where(mask, proj, np.inf).min(axis=1)
-    return {"apex": apex, "axis": axis, "sin": sin_a, "cos": cos_a, "t0": t0,
-            "always": always}
-
-
-def _split(v):
-    """A [..., 3] array as a tuple of three [...] arrays (structure of arrays)."""
-    return tuple(v[..., i] for i in range(3))
-
-
-def _cone_dist(p, apex, axis, sin_a, cos_a):
-    """Distance [...] from points p to infinite solid cones; p, apex, axis: 3-tuples."""
-    v = tuple(p[i] - apex[i] for i in range(3))
-    h = v[0] * axis[0] + v[1] * axis[1] + v[2] * axis[2]
-    vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-    q = jnp.sqrt(jnp.maximum(vv - h * h, 0.0))
-    side = q * cos_a - h * sin_a
-    return jnp.where(side <= 0, 0.0,
-                     jnp.where(h * cos_a + q * sin_a >= 0, side, jnp.sqrt(vv)))
-
-
-def cone_hits_capsule(cone, s0, s1, r0, r1):
-    """Conservative: may the truncated cone meet the capsule hull(B(s0, r0), B(s1, r1))?
-
-    f(t) = dist(s(t), cone) - r(t) is convex on [0, 1]; golden-section search brackets
-    its minimum, and f(t*) - Lip * bracket <= 0 accepts (Lip = |s1 - s0| + |r1 - r0|), so
-    the test never rejects a capsule that meets the cone. A sphere is s0 = s1, r0 = r1.
-
-    Args:
-        cone: dict of arrays broadcastable to [...] (apex/axis [..., 3]).
-        s0, s1: [..., 3]; r0, r1: [...].
-    Returns:
-        bool [...].
-    """
-    apex, axis, sa, ca = _split(cone["apex"]), _split(cone["axis"]), cone["sin"], cone["cos"]
-    s0, s1 = _split(s0), _split(s1)
-    ds = tuple(s1[i] - s0[i] for i in range(3))
-
-    def f(t):
-        p = tuple(s0[i] + t * ds[i] for i in range(3))
-        return _cone_dist(p, apex, axis, sa, ca) - (r0 + t * (r1 - r0))
-
-    shape = jnp.broadcast_shapes(r0.shape, sa.shape)
-    lo = jnp.zeros(shape, r0.dtype)
-    hi = jnp.ones(shape, r0.dtype)
-    g = (math.sqrt(5) - 1) / 2
-    a = hi - g * (hi - lo)
-    b = lo + g * (hi - lo)
-    fa, fb = f(a), f(b)
-    for _ in range(GOLDEN_ITERS):          # one new evaluation per step
-        left = fa <= fb                      # the minimum lies in [lo, b] or in [a, hi]
-        hi = jnp.where(left, b, hi)
-        lo = jnp.where(left, lo, a)
-        x = jnp.where(left, hi - g * (hi - lo), lo + g * (hi - lo))
-        fx = f(x)
-        a, b, fa, fb = (jnp.where(left, x, b), jnp.where(left, a, x),
-                        jnp.where(left, fx, fb), jnp.where(left, fa, fx))
-    t = 0.5 * (lo + hi)
-    lip = jnp.sqrt(ds[0] ** 2 + ds[1] ** 2 + ds[2] ** 2) + jnp.abs(r1 - r0)
-    best = jnp.minimum(jnp.minimum(f(t), f(jnp.zeros_like(t))), f(jnp.ones_like(t)))
-    meets = best - lip * (hi - lo) <= 0
-    reach = jnp.maximum(s0[0] * axis[0] + s0[1] * axis[1] + s0[2] * axis[2] + r0,
-                        s1[0] * axis[0] + s1[1] * axis[1] + s1[2] * axis[2] + r1)
-    return (meets & (reach >= cone["t0"])) | cone["always"]
-
-
-def cone_outside_plane(cone, normal, offset):
-    """bool [...]: the truncated cone lies entirely in n . x + offset < 0.
-
-    Its start cap (the disk where p . axis = t0) must be outside and every ray of the
-    cone must move away from the plane (n . axis <= -sin a).
-    """
-    apex, axis, sa, ca = cone["apex"], cone["axis"], cone["sin"], cone["cos"]
-    nd = jnp.sum(normal * axis, -1)
-    h = cone["t0"] - jnp.sum(apex * axis, -1)                 # apex to the cap, along axis
-    h = jnp.maximum(h, 0.0)
-    cap_c = apex + h[..., None] * axis
-    cap_r = h * sa / jnp.maximum(ca, 1e-30)
-    lateral = jnp.sqrt(jnp.maximum(1 - nd * nd, 0.0))
-    cap_out = jnp.sum(normal * cap_c, -1) + offset + cap_r * lateral < 0
-    return cap_out & (nd <= -sa) & ~cone["always"]
-
-
-@jax.jit
-def _gather_test(cone, planes, s0, s1, r0, r1):
-    """bool [n]: cones that may shadow a sample in the frustum (planes [6, 4])."""
-    keep = cone_hits_capsule(cone, s0, s1, r0, r1)
-    for k in range(6):
-        keep = keep & ~cone_outside_plane(cone, planes[k, :3], planes[k, 3])
-    return keep
-
-
-def _pair_test(cone, tile_of, bounds, halves=2):
-    """bool [P, 2]: cone p against the depth halves of tile tile_of[p].
-
-    bounds: [Nt, 2, 8] = (s0 xyz, r0, s1 xyz, r1) per half; r0 < 0 marks an empty half.
-    Without half-z (``halves=1``) half 1 is empty and not tested.
-    """
-    out = []
-    for half in range(2):
-        if half >= halves:
-            out.append(jnp.zeros(tile_of.shape, bool))
-            continue
-        bb = bounds[:, half][tile_of]                          # [P, 8]
-        hit = cone_hits_capsule(cone, bb[:, 0:3], bb[:, 4:7], bb[:, 3], bb[:, 7])
-        out.append(hit & (bb[:, 3] >= 0))
-    return jnp.stack(out, -1)
-
-
-_PAIR_TESTS = {h: jax.jit(functools.partial(_pair_test, halves=h)) for h in (1, 2)}
 
 
 # ------------------------------------------------------------------ per-pixel setup
@@ -289,84 +145,6 @@ def pixel_frames(pos, nrm, light: SphereLight, disk_scale: str):
     e1, e2 = _orthonormal(np.asarray(w, float))
     frame = np.stack([e1, e2, w], axis=1)
     return frame, s, z_light, sin_a
-
-
-def tile_bounds(camera, depth: np.ndarray, relevant: np.ndarray, half_z: bool, pad: float):
-    """Bounding capsules of each tile's relevant samples.
-
-    Args:
-        depth, relevant: [Nt, 256] view depths and flags (tile-major layout).
-    Returns:
-        float64 [Nt, 2, 8]: per depth half (near, far) the capsule (s0, r0, s1, r1):
-        the tile's frustum between the half's min and max depth, its cross-section at
-        depth z bounded by the disk of radius z * hd around the tile's centre ray.
-        Without ``half_z`` half 0 holds the whole range and half 1 is empty
-        (r0 = -1). Also returns half [Nt, 256] int (0 near, 1 far).
-    """
-    h, w = camera.height, camera.width
-    ty, tx = -(-h // TILE), -(-w // TILE)
-    t = math.tan(math.radians(camera.fov_y_deg) / 2)
-    right, up, back = camera.basis()
-    x0 = np.arange(tx) * TILE
-    y0 = np.arange(ty) * TILE
-    xe = np.minimum(x0 + TILE, w)
-    ye = np.minimum(y0 + TILE, h)
-
-    def ndc_x(px):
-        return (px / w * 2 - 1) * t * camera.aspect
-
-    def ndc_y(py):
-        return (1 - py / h * 2) * t
-
-    cx = np.stack([ndc_x(x0), ndc_x(xe)], -1)                  # [tx, 2]
-    cy = np.stack([ndc_y(y0), ndc_y(ye)], -1)                  # [ty, 2]
-    mx = cx.mean(-1)
-    my = cy.mean(-1)
-    hx = 0.5 * np.abs(cx[:, 1] - cx[:, 0])
-    hy = 0.5 * np.abs(cy[:, 1] - cy[:, 0])
-    rc = (mx[None, :, None] * right + my[:, None, None] * up - back).reshape(-1, 3)  # [Nt, 3]
-    hd = np.sqrt(hx[None, :] ** 2 + hy[:, None] ** 2).reshape(-1)
-    inf = np.where(relevant, depth, np.inf)
-    sup = np.where(relevant, depth, -np.inf)
-    zmin, zmax = inf.min(1), sup.max(1)
-    if half_z:
-        mid = np.where(relevant.any(1), 0.5 * (np.minimum(zmin, 1e300) + np.maximum(zmax, -1e300)),
-                       0.0)
-        half = (depth > mid[:, None]).astype(np.int64)
-    else:
-        half = np.zeros(depth.shape, np.int64)
-    out = np.zeros((len(rc), 2, 8))
-    for k in range(2):
-        sel = relevant & (half == k)
-        lo = np.where(sel, depth, np.inf).min(1)
-        hi = np.where(sel, depth, -np.inf).max(1)
-        ok = sel.any(1)
-        lo = np.where(ok, lo, 1.0)
-        hi = np.where(ok, hi, 1.0)
-        out[:, k, 0:3] = camera.eye + lo[:, None] * rc
-        out[:, k, 3] = np.where(ok, lo * hd * (1 + 1e-6) + pad, -1.0)
-        out[:, k, 4:7] = camera.eye + hi[:, None] * rc
-        out[:, k, 7] = np.where(ok, hi * hd * (1 + 1e-6) + pad, -1.0)
-        # the depth planes' slab is a little thicker than the pixel positions
-        out[:, k, 0:3] -= pad * rc / np.linalg.norm(rc, axis=1, keepdims=True)
-        out[:, k, 4:7] += pad * rc / np.linalg.norm(rc, axis=1, keepdims=True)
-    return out, half
-
-
-def capsule_to_sphere(b: np.ndarray) -> np.ndarray:
-    """The smallest sphere holding each capsule [..., 8], as a capsule with s0 = s1."""
-    s0, r0, s1, r1 = b[..., 0:3], b[..., 3], b[..., 4:7], b[..., 7]
-    d = np.linalg.norm(s1 - s0, axis=-1)
-    r = 0.5 * (d + r0 + r1)
-    r = np.maximum(r, np.maximum(r0, r1))
-    t = np.where(d > 0, (r - r0) / np.maximum(d, 1e-300), 0.0)
-    c = s0 + np.clip(t, 0, 1)[..., None] * (s1 - s0)
-    out = b.copy()
-    out[..., 0:3] = c
-    out[..., 4:7] = c
-    out[..., 3] = np.where(r0 < 0, -1.0, r)
-    out[..., 7] = np.where(r0 < 0, -1.0, r)
-    return out
 
 
 def frustum_planes(camera, zmin: float, zmax: float) -> np.ndarray:
@@ -500,17 +278,25 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             quick, near = quick_reject(d, qx, qy)
             return d, qx, qy, act, act & quick, near
 
+        def chunk_visits(j, alive, counts):
+            """Visit the entries of chunk j in order, lazily: yields (k, ent, qx, qy, use,
+            counts) per entry k, counts = (tests, rasterized, near clamps) int32 [G, 256]
+            with entry k added (``use``: it passed the quick reject)."""
+            live, ent, eh = chunk_entries(j)
+            vid = tri_id[ent]
+            tests, rast, clamp = counts
+            for k in range(chunk):
+                _, qx, qy, act, use, near = visit(live, ent, eh, vid, k, alive)
+                tests = tests + act.astype(jnp.int32)
+                rast = rast + use.astype(jnp.int32)
+                clamp = clamp + (use & near).astype(jnp.int32)
+                yield k, ent, qx, qy, use, (tests, rast, clamp)
+
         if not defer:
             # every visited pair is rasterized; the quick reject only gates the result
             def body(j, state):
-                words, blocked, tests, rast, clamp = state
-                live, ent, eh = chunk_entries(j)
-                vid = tri_id[ent]
-                for k in range(chunk):
-                    _, qx, qy, act, use, near = visit(live, ent, eh, vid, k, True)
-                    tests = tests + act.astype(jnp.int32)
-                    rast = rast + use.astype(jnp.int32)
-                    clamp = clamp + (use & near).astype(jnp.int32)
+                words, blocked, counts = state[0], state[1], state[2:]
+                for k, ent, qx, qy, use, counts in chunk_visits(j, True, counts):
                     if mode == "overlap":
                         pts = jnp.stack([jnp.stack(jnp.broadcast_arrays(qx[v], qy[v]), -1)
                                          for v in range(3)], -2)
@@ -519,7 +305,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                         continue
                     keep = raster_pair(jnp.broadcast_to(ent[:, k, None], shape), use)
                     words = [wd & kp for wd, kp in zip(words, keep)]
-                return words, blocked, tests, rast, clamp
+                return (words, blocked) + counts
 
             words, blocked, tests, rast, clamp = jax.lax.fori_loop(
                 0, trips, body, (words0, blocked0, zero, zero, zero))
@@ -551,18 +337,12 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             base, tests, rast, clamp, bits, summary, alive = state
 
             def step(st, carry):
-                cur, tests, rast, clamp = carry
+                cur, counts = carry[0], carry[1:]
                 j = wi * per_word + st
-                live, ent, eh = chunk_entries(j)
-                vid = tri_id[ent]
-                for k in range(chunk):
-                    _, _, _, act, use, near = visit(live, ent, eh, vid, k, alive)
-                    tests = tests + act.astype(jnp.int32)
-                    rast = rast + use.astype(jnp.int32)
-                    clamp = clamp + (use & near).astype(jnp.int32)
+                for k, _, _, _, use, counts in chunk_visits(j, alive, counts):
                     shift = (st * chunk + k).astype(jnp.uint32)
                     cur = cur | jax.lax.shift_left(use.astype(jnp.uint32), shift)
-                return cur, tests, rast, clamp
+                return (cur,) + counts
 
             cur, tests, rast, clamp = jax.lax.fori_loop(
                 0, per_word, step, (jnp.zeros(shape, jnp.uint32), tests, rast, clamp))
@@ -623,29 +403,115 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
 
 # ------------------------------------------------------------------ the method
 
-def _tile_layout(h: int, w: int):
-    """int64 [Nt, 256]: flat pixel index of each tile slot (-1 outside the image)."""
-    ty, tx = -(-h // TILE), -(-w // TILE)
-    yy = (np.arange(ty)[:, None, None, None] * TILE + np.arange(TILE)[None, None, :, None])
-    xx = (np.arange(tx)[None, :, None, None] * TILE + np.arange(TILE)[None, None, None, :])
-    yy, xx = np.broadcast_arrays(yy, xx)
-    idx = np.where((yy < h) & (xx < w), yy * w + xx, -1)
-    return idx.reshape(ty * tx, TILE * TILE)
+@dataclasses.dataclass(frozen=True, eq=False)
+class Gathered:
+    """The blockers that survive the per-frame gather (G groups, n triangles).
+
+    Attributes:
+        triangles: int64 [n] scene triangle ids; members: int64 [G, k] indices into
+            ``triangles`` (-1 = none); group_cones, triangle_cones: padded cones of the
+            groups and triangles (``structures.cones``); clusters: int64 [C, k] the
+            scene's groups; light_facing: triangles left by light-facing culling; pad:
+            world-space padding of the depth bounds.
+    """
+
+    triangles: np.ndarray
+    members: np.ndarray
+    group_cones: dict
+    triangle_cones: dict
+    clusters: np.ndarray
+    light_facing: int
+    pad: float
 
 
-def _expand(tile_of: np.ndarray, group: np.ndarray, members: np.ndarray):
-    """Pairs (tile, member) for every (tile, group) pair: members [C, k] (-1 = none)."""
-    m = members[group]                                         # [P, k]
-    t = np.repeat(tile_of, m.shape[1])
-    m = m.reshape(-1)
-    ok = m >= 0
-    return t[ok], m[ok]
+def _gather(timer, scene, light, cam, depth, relevant, eps, culling: CullSettings,
+            dtype) -> Gathered:
+    """Light-facing culling, then view-frustum culling of group and triangle cones
+    between the nearest and farthest relevant depth (depth, relevant: [Nt, 256])."""
+    tri_all = scene.triangles                                    # float64 [T, 3, 3]
+    n_tri = len(tri_all)
+    samples = int(relevant.sum())
+    with timer.stage("gather"):
+        # light-facing culling (the paper culls triangles facing the light)
+        e1 = tri_all[:, 1] - tri_all[:, 0]
+        e2 = tri_all[:, 2] - tri_all[:, 0]
+        ng = np.cross(e1, e2)
+        area2 = np.linalg.norm(ng, axis=1)
+        live = area2 > 0
+        ng = ng / np.maximum(area2, 1e-300)[:, None]
+        if light.is_sun:
+            facing = ng @ -light.direction
+            margin = math.sin(math.radians(light.angular_radius_deg))
+        else:
+            facing = np.einsum("ij,ij->i", ng, light.position - tri_all[:, 0])
+            margin = light.radius
+        if culling.face_cull == "front":
+            live &= ~(facing > margin)                           # faces all of the light
+        elif culling.face_cull == "back":
+            live &= ~(facing < -margin)
+        after_facing = int(live.sum())
+        clusters = build_clusters(scene, culling.cluster_size)           # [C, k]
+        members = np.where(clusters >= 0, clusters, -1)
+        members = np.where(live[np.maximum(members, 0)] & (members >= 0), members, -1)
+        nonempty = (members >= 0).any(1)
+        members = members[nonempty]
+        rel_depth = depth[relevant]
+        if samples:
+            zmin, zmax = float(rel_depth.min()), float(rel_depth.max())
+        else:
+            zmin = zmax = 1.0
+        pad = 1e-5 * scene.diagonal + 2 * eps
+        # whole-screen capsule: the view frustum between zmin and zmax
+        t = math.tan(math.radians(cam.fov_y_deg) / 2)
+        hd = t * math.hypot(1.0, cam.aspect)
+        back = cam.basis()[2]
+        s0 = cam.eye - zmin * back
+        s1 = cam.eye - zmax * back
+        r0, r1 = zmin * hd + pad, zmax * hd + pad
+        planes = frustum_planes(cam, zmin - pad, zmax + pad)
+
+    def to_j(cone):
+        return {k: jnp.asarray(v if v.dtype == bool else v.astype(dtype))
+                for k, v in cone.items()}
+
+    def gather_test(cone):
+        if not culling.gather_cull:
+            return np.ones(len(cone["t0"]), bool)
+        args = (to_j(cone), jnp.asarray(planes, dtype), jnp.asarray(s0, dtype),
+                jnp.asarray(s1, dtype), jnp.asarray(r0, dtype), jnp.asarray(r1, dtype))
+        return np.asarray(timer.run("gather_test", cones_in_frustum, *args))
+
+    with timer.stage("gather"):
+        cl_cone = pad_cones(blocker_cones(tri_all, members, light))
+    keep_cl = gather_test(cl_cone)[: len(members)] if samples else np.zeros(len(members), bool)
+    with timer.stage("gather"):
+        members = members[keep_cl]
+        cand = members[members >= 0]
+        tri_cone = pad_cones(blocker_cones(tri_all[cand], None, light))
+    keep_tri = gather_test(tri_cone)[: len(cand)] if len(cand) else np.zeros(0, bool)
+    with timer.stage("gather"):
+        gathered = cand[keep_tri]                            # original triangle ids
+        local = np.full(n_tri, -1, np.int64)
+        local[gathered] = np.arange(len(gathered))
+        g_members = np.where(members >= 0, local[np.maximum(members, 0)], -1)
+        g_nonempty = (g_members >= 0).any(1)
+        g_members = g_members[g_nonempty]
+        g_cl_cone = pad_cones(blocker_cones(tri_all, np.where(
+            g_members >= 0, gathered[np.maximum(g_members, 0)], -1), light))
+        g_tri_cone = pad_cones(blocker_cones(tri_all[gathered], None, light))
+    return Gathered(gathered, g_members, g_cl_cone, g_tri_cone, clusters, after_facing, pad)
 
 
-def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, seed,
-                    projection, disk_scale, horizon, face_cull, gather_cull, tile_cull,
-                    cluster_cull, cluster_size, bound, half_z, capacity, on_overflow, chunk,
-                    mode, method, defer=False):
+def soft_tiled_impl(scene, gbuf, light, *, culling: CullSettings, precision, shadow_eps,
+                    grid, rotate, seed, projection, disk_scale, horizon, chunk, mode, method,
+                    defer=False):
+    """Visibility of every pixel (see the module docstring).
+
+    ``culling`` holds the gather and tile-list settings; the rest configure the per-pixel
+    evaluation (``mode``: "bitmask" rasterizes into the disk grid, "overlap" sums
+    analytic overlap areas). Returns a ``ShadowResult`` whose ``lit`` is float [H, W]
+    visibility in [0, 1].
+    """
     timer = StageTimer()
     cam = gbuf.camera
     h, w = gbuf.shape
@@ -653,7 +519,7 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
     with timer.stage("setup"):
         tri_all = scene.triangles                                # float64 [T, 3, 3]
         n_tri = len(tri_all)
-        layout = _tile_layout(h, w)
+        layout = tile_layout(h, w)
         n_tiles = len(layout)
         flat = np.maximum(layout, 0)
         inside = layout >= 0
@@ -680,113 +546,20 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
         nrm_l = np.einsum("tpci,tpi->tpc", frame, nrm)
         samples = int(relevant.sum())
 
-    with timer.stage("gather"):
-        # light-facing culling (the paper culls triangles facing the light)
-        e1 = tri_all[:, 1] - tri_all[:, 0]
-        e2 = tri_all[:, 2] - tri_all[:, 0]
-        ng = np.cross(e1, e2)
-        area2 = np.linalg.norm(ng, axis=1)
-        live = area2 > 0
-        ng = ng / np.maximum(area2, 1e-300)[:, None]
-        if light.is_sun:
-            facing = ng @ -light.direction
-            margin = math.sin(math.radians(light.angular_radius_deg))
-        else:
-            facing = np.einsum("ij,ij->i", ng, light.position - tri_all[:, 0])
-            margin = light.radius
-        if face_cull == "front":
-            live &= ~(facing > margin)                           # faces all of the light
-        elif face_cull == "back":
-            live &= ~(facing < -margin)
-        after_facing = int(live.sum())
-        clusters = build_clusters(scene, cluster_size)           # [C, k]
-        members = np.where(clusters >= 0, clusters, -1)
-        members = np.where(live[np.maximum(members, 0)] & (members >= 0), members, -1)
-        nonempty = (members >= 0).any(1)
-        members = members[nonempty]
-        rel_depth = depth[relevant]
-        if samples:
-            zmin, zmax = float(rel_depth.min()), float(rel_depth.max())
-        else:
-            zmin = zmax = 1.0
-        pad = 1e-5 * scene.diagonal + 2 * eps
-        # whole-screen capsule: the view frustum between zmin and zmax
-        t = math.tan(math.radians(cam.fov_y_deg) / 2)
-        hd = t * math.hypot(1.0, cam.aspect)
-        back = cam.basis()[2]
-        s0 = cam.eye - zmin * back
-        s1 = cam.eye - zmax * back
-        r0, r1 = zmin * hd + pad, zmax * hd + pad
-        planes = frustum_planes(cam, zmin - pad, zmax + pad)
     with precision_mode(precision) as dtype:
-        def to_j(cone):
-            return {k: jnp.asarray(v if v.dtype == bool else v.astype(dtype))
-                    for k, v in cone.items()}
-
-        def gather_test(cone):
-            if not gather_cull:
-                return np.ones(len(cone["t0"]), bool)
-            args = (to_j(cone), jnp.asarray(planes, dtype), jnp.asarray(s0, dtype),
-                    jnp.asarray(s1, dtype), jnp.asarray(r0, dtype), jnp.asarray(r1, dtype))
-            return np.asarray(timer.run("gather_test", _gather_test, *args))
-
-        with timer.stage("gather"):
-            cl_cone = _pad_cone(blocker_cones(tri_all, members, light))
-        keep_cl = gather_test(cl_cone)[: len(members)] if samples else np.zeros(len(members), bool)
-        with timer.stage("gather"):
-            members = members[keep_cl]
-            cand = members[members >= 0]
-            tri_cone = _pad_cone(blocker_cones(tri_all[cand], None, light))
-        keep_tri = gather_test(tri_cone)[: len(cand)] if len(cand) else np.zeros(0, bool)
-        with timer.stage("gather"):
-            gathered = cand[keep_tri]                            # original triangle ids
-            local = np.full(n_tri, -1, np.int64)
-            local[gathered] = np.arange(len(gathered))
-            g_members = np.where(members >= 0, local[np.maximum(members, 0)], -1)
-            g_nonempty = (g_members >= 0).any(1)
-            g_members = g_members[g_nonempty]
-            g_cl_cone = _pad_cone(blocker_cones(tri_all, np.where(
-                g_members >= 0, gathered[np.maximum(g_members, 0)], -1), light))
-            g_tri_cone = _pad_cone(blocker_cones(tri_all[gathered], None, light))
-            n_gather_cl = len(g_members)
-            n_gather = len(gathered)
+        gath = _gather(timer, scene, light, cam, depth, relevant, eps, culling, dtype)
+        gathered, g_members = gath.triangles, gath.members
+        n_gather_cl, n_gather = len(g_members), len(gathered)
 
         # ---- eval pass, culling part: per tile, clusters then triangles
         with timer.stage("tile_bounds"):
-            bounds, half = tile_bounds(cam, depth, relevant, half_z, pad)
-            if bound == "sphere":
+            bounds, half = tile_bounds(cam, depth, relevant, culling.half_z, gath.pad)
+            if culling.bound == "sphere":
                 bounds = capsule_to_sphere(bounds)
             active = relevant.any(1)
-            act_tiles = np.flatnonzero(active)
-        with timer.stage("tile_lists"):
-            tiles_p = np.repeat(act_tiles, n_gather_cl)
-            cl_p = np.tile(np.arange(n_gather_cl), len(act_tiles))
-        jb = jnp.asarray(bounds.astype(dtype))
-        cluster_pairs = len(tiles_p)
-        if cluster_cull and tile_cull and len(tiles_p):
-            hit = _run_pairs(timer, g_cl_cone, cl_p, tiles_p, jb, dtype, 2 if half_z else 1)
-            keep = hit.any(1)
-            tiles_p, cl_p, cl_half = tiles_p[keep], cl_p[keep], hit[keep]
-        else:
-            cl_half = np.ones((len(tiles_p), 2), bool)
-        cluster_survivors = len(tiles_p)
-        with timer.stage("tile_lists"):
-            reps = (g_members[cl_p] >= 0).sum(1)
-            tri_t, tri_g = _expand(tiles_p, cl_p, g_members)
-            tri_h = np.repeat(cl_half, reps, axis=0)
-        triangle_pairs = len(tri_t)
-        if tile_cull and len(tri_t):
-            hit = _run_pairs(timer, g_tri_cone, tri_g, tri_t, jb, dtype, 2 if half_z else 1) & tri_h
-            keep = hit.any(1)
-            tri_t, tri_g, tri_h = tri_t[keep], tri_g[keep], hit[keep]
-        with timer.stage("tile_lists"):
-            order = np.argsort(tri_t, kind="stable")
-            tri_t, tri_g, tri_h = tri_t[order], tri_g[order], tri_h[order]
-            lengths = np.bincount(tri_t, minlength=n_tiles)
-            starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-            overflow = lengths > capacity
-            counts = np.minimum(lengths, capacity) if on_overflow == "truncate" else lengths
-            half_bits = (tri_h[:, 0].astype(np.int32) | (tri_h[:, 1].astype(np.int32) << 1))
+        lists = build_tile_lists(timer, gath.group_cones, gath.triangle_cones, g_members,
+                                 bounds, active, culling, dtype)
+        tri_g, starts, counts = lists.entry, lists.starts, lists.counts
 
         # ---- eval pass, rasterization: tiles grouped by chunk count
         with timer.stage("eval_setup"):
@@ -806,7 +579,7 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
             ent = np.zeros(L, np.int32)
             ent[:len(tri_g)] = tri_g
             ehalf = np.zeros(L, np.int32)
-            ehalf[:len(tri_g)] = half_bits
+            ehalf[:len(tri_g)] = lists.half_bits
             tri_soa = np.ascontiguousarray(tri_g_arr.reshape(-1, 9).T)
             args_common = (pix, jnp.asarray(tri_soa), jnp.asarray(tri_id), jnp.asarray(ent),
                            jnp.asarray(ehalf), jnp.asarray(dtype(eps)))
@@ -846,31 +619,31 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
             return out.reshape(h, w)
 
         vis_img = to_image(np.where(relevant, vis, 0.0))
+        lengths = lists.lengths
         per_tile = np.repeat(lengths[:, None], TILE * TILE, 1)
-        over_map = np.repeat(overflow[:, None], TILE * TILE, 1).astype(np.int64)
+        over_map = np.repeat(lists.overflow[:, None], TILE * TILE, 1).astype(np.int64)
     counters = {
         "samples": samples,
         "casters": n_gather,
         "culled_triangles": n_tri - n_gather,
         "tests": int(tests.sum()),
         "tests_per_pixel": to_image(tests),
-        "soft_clusters": int(len(clusters)),
-        "light_facing_survivors": after_facing,
+        "soft_clusters": int(len(gath.clusters)),
+        "light_facing_survivors": gath.light_facing,
         "gather_clusters": n_gather_cl,
         "gather_triangles": n_gather,
         "active_tiles": int(active.sum()),
         "tiles": n_tiles,
-        "tile_cluster_pairs": int(cluster_pairs),
-        "tile_cluster_survivors": int(cluster_survivors),
-        "tile_triangle_pairs": int(triangle_pairs),
+        "tile_cluster_pairs": int(lists.cluster_pairs),
+        "tile_cluster_survivors": int(lists.cluster_survivors),
+        "tile_triangle_pairs": int(lists.triangle_pairs),
         "tile_triangles": int(lengths.sum()),
         "tile_triangles_max": int(lengths.max()) if n_tiles else 0,
         "tile_list_lengths": lengths.astype(np.int64),
         "tile_triangles_per_pixel": to_image(per_tile.astype(np.int64)),
-        "overflow_tiles": int(overflow.sum()),
+        "overflow_tiles": lists.overflow_tiles,
         "overflow_tiles_per_pixel": to_image(over_map),
-        "dropped_entries": int((lengths - np.minimum(lengths, capacity)).sum())
-        if on_overflow == "truncate" else 0,
+        "dropped_entries": lists.dropped_entries,
         "rasterized_triangles": int(rast.sum()),
         "rasterized_per_pixel": to_image(rast),
         "near_clamp_per_pixel": to_image(clamped),
@@ -878,10 +651,7 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
     timings = dict(timer.times, total=timer.total)
     options = {"precision": precision, "shadow_eps": shadow_eps, "grid": grid, "rotate": rotate,
                "seed": seed, "projection": projection, "disk_scale": disk_scale,
-               "horizon": horizon, "face_cull": face_cull, "gather_cull": gather_cull,
-               "tile_cull": tile_cull, "cluster_cull": cluster_cull,
-               "cluster_size": cluster_size, "bound": bound, "half_z": half_z,
-               "capacity": capacity, "on_overflow": on_overflow, "chunk": chunk,
+               "horizon": horizon, **dataclasses.asdict(culling), "chunk": chunk,
                "defer": defer}
     if mode == "overlap":
         for k in ("grid", "rotate", "seed", "projection", "defer"):
@@ -889,38 +659,11 @@ def soft_tiled_impl(scene, gbuf, light, *, precision, shadow_eps, grid, rotate, 
     return ShadowResult(vis_img, counters, timings, method, options)
 
 
-def _pad_cone(cone: dict) -> dict:
-    """Pad every cone array to a bucketed length (padding: cones that meet nothing)."""
-    n = len(cone["t0"])
-    cap = bucket(max(n, 1), minimum=256, steps=8)
-    out = {}
-    for k, v in cone.items():
-        fill = {"t0": np.inf, "always": False}.get(k, 0.0)
-        if k == "axis":
-            fill = 0.0
-        pad = np.full((cap - n,) + v.shape[1:], fill, dtype=v.dtype)
-        if k == "axis":
-            pad[..., 2] = 1.0
-        if k in ("sin",):
-            pad[:] = 0.5
-        if k == "cos":
-            pad[:] = math.sqrt(0.75)
-        out[k] = np.concatenate([v, pad])
-    return out
-
-
-def _run_pairs(timer, cone, which, tile_of, bounds, dtype, halves):
-    """bool [P, 2]: cone ``which[p]`` against tile ``tile_of[p]``'s two halves."""
-    n = len(which)
-    cap = bucket(n, minimum=1024, steps=8)
-    w = np.zeros(cap, np.int64)
-    w[:n] = which
-    t = np.zeros(cap, np.int64)
-    t[:n] = tile_of
-    c = {k: jnp.asarray(v[w] if v.dtype == bool else v[w].astype(dtype)) for k, v in cone.items()}
-    out = timer.run("tile_cull", _PAIR_TESTS[halves], c, jnp.asarray(t.astype(np.int32)),
-                    bounds)
-    return np.asarray(out)[:n]
+def split_culling(opts: dict) -> tuple[CullSettings, dict]:
+    """The options of a soft method as (culling settings, the other options)."""
+    names = {f.name for f in dataclasses.fields(CullSettings)}
+    culling = CullSettings(**{k: v for k, v in opts.items() if k in names})
+    return culling, {k: v for k, v in opts.items() if k not in names}
 
 
 GRID_OPTION = Option("16x16", "bitmask grid: 16x16 (8 words, 208 disk cells) or 31 columns x "
@@ -973,7 +716,9 @@ COMMON_SOFT = {
                                    allowed=(True, False)),
                    **COMMON_SOFT})
 def soft_tiled(scene, gbuf, light, **opts):
-    return soft_tiled_impl(scene, gbuf, light, mode="bitmask", method="soft_tiled", **opts)
+    culling, rest = split_culling(opts)
+    return soft_tiled_impl(scene, gbuf, light, culling=culling, mode="bitmask",
+                           method="soft_tiled", **rest)
 
 
 @register("soft_overlap_sum", exact=False, soft=True,
@@ -981,5 +726,7 @@ def soft_tiled(scene, gbuf, light, **opts):
               "overlapping occluders)", paper="kalbertodt2023-tiled-soft-shadow-volumes",
           options=dict(COMMON_SOFT))
 def soft_overlap_sum(scene, gbuf, light, **opts):
-    return soft_tiled_impl(scene, gbuf, light, mode="overlap", method="soft_overlap_sum",
-                           grid="16x16", rotate=False, seed=0, projection="paper", **opts)
+    culling, rest = split_culling(opts)
+    return soft_tiled_impl(scene, gbuf, light, culling=culling, mode="overlap",
+                           method="soft_overlap_sum", grid="16x16", rotate=False, seed=0,
+                           projection="paper", **rest)
