@@ -167,6 +167,8 @@ def from_validation_error(exc: ValidationError, model: type[BaseModel], raw: dic
     allowed = literal_values(model.model_fields[field].annotation) \
         if field in model.model_fields else None
     if allowed is not None and err["type"] == "literal_error":
+        if len(loc) > 1 and isinstance(loc[1], int):        # an item of a list field
+            key, value = f"{key}[{loc[1]}]", _dig(raw, loc[:2])
         return ctx.error(key, f"= {show(value)} is not allowed; allowed: "
                          + ", ".join(map(str, allowed)))
     wanted = extra.get("wanted", "valid")
