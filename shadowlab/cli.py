@@ -1,4 +1,10 @@
-"""The ``shadowlab`` command: run | methods | scenes | bench | figures."""
+"""The ``shadowlab`` command: run | methods | scenes | bench | figures.
+
+Every user error (an invalid config or experiment config, a bad option, a scene that
+cannot be built, work too large for the machine) prints ``shadowlab: error: <message>``
+on stderr and exits with status 2; outputs are written atomically at the end of a
+command, so a failed one leaves no file behind.
+"""
 
 from __future__ import annotations
 
@@ -126,6 +132,11 @@ def main(argv: list[str] | None = None) -> int:
         return handlers[args.command](args)
     except (ConfigError, ExperimentError, MethodError, SceneError) as exc:
         print(f"shadowlab: error: {exc}", file=sys.stderr)
+        return 2
+    except MemoryError as exc:      # past the up-front estimate (shadowlab.config.resources)
+        print(f"shadowlab: error: out of memory ({exc or 'MemoryError'}); lower "
+              "camera.resolution or animation.frames, or set SHADOWLAB_MEMORY_LIMIT lower so "
+              "such work is refused up front; no output file was written", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("shadowlab: interrupted; no output file was left half-written", file=sys.stderr)

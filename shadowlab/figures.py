@@ -23,15 +23,22 @@ from __future__ import annotations
 import importlib.util
 import sys
 import time
-import tomllib
 import traceback
 from pathlib import Path
 
 from . import io
+from .config.errors import ConfigError
+from .config.experiments import load_experiment_file
 
 
 class ExperimentError(ValueError):
-    pass
+    """An experiment cannot run: no experiments folder, an unknown name, a malformed
+    experiment module or claim, or an invalid config (:class:`ExperimentConfigError`)."""
+
+
+class ExperimentConfigError(ExperimentError, ConfigError):
+    """An invalid experiment config; the message names the file and the key
+    (:mod:`shadowlab.config.experiments`)."""
 
 
 class ClaimFailed(AssertionError):
@@ -85,13 +92,20 @@ def load_module(path: Path):
 
 
 def load_experiment_config(root: Path, name: str, size: str) -> dict:
+    """``configs/experiments/<name>.<size>.toml`` under ``root``, validated
+    (:func:`shadowlab.config.experiments.load_experiment_file`), as a plain dict.
+
+    Raises:
+        ExperimentConfigError: no such file, invalid TOML, an unknown key, or a value
+            of the wrong type or range (the message names the file and the key).
+    """
     path = root / "configs" / "experiments" / f"{name}.{size}.toml"
     if not path.exists():
-        raise ExperimentError(f"{path}: no such experiment config (sizes: ci, full)")
+        raise ExperimentConfigError(f"{path}: no such experiment config (sizes: ci, full)")
     try:
-        return tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ExperimentError(f"{path}: {exc}") from exc
+        return load_experiment_file(path)
+    except ConfigError as exc:
+        raise ExperimentConfigError(str(exc)) from exc
 
 
 def run_as_script(file: str, size: str = "ci") -> dict:
@@ -139,13 +153,20 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
 def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
                progress: bool = True, out: Path | None = None) -> list[str]:
     """Run every experiment (or ``only`` those) writing to ``out`` (default
-    ``root/figures``); return the names that failed."""
+    ``root/figures``); return the names that failed.
+
+    Raises:
+        ExperimentError: an unknown experiment name, or an invalid config (all configs
+            are validated before the first experiment runs).
+    """
     found = discover(root)
     names = only or list(found)
     unknown = sorted(set(names) - set(found))
     if unknown:
         raise ExperimentError(f"unknown experiment(s) {', '.join(unknown)}; "
                               f"available: {', '.join(found)}")
+    for name in names:              # every config is checked before any experiment runs
+        load_experiment_config(root, name, size)
     failures = []
     for name in names:
         t0 = time.perf_counter()

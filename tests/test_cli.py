@@ -93,6 +93,41 @@ def test_bad_input_exits_2_with_a_message(tmp_path, capsys):
     assert "no experiments folder" in capsys.readouterr().err
 
 
+def test_invalid_experiment_config_exits_2_before_any_experiment_runs(tmp_path, capsys):
+    (tmp_path / "experiments").mkdir()
+    ran = tmp_path / "ran"
+    for name in ("a_good", "b_bad"):
+        (tmp_path / "experiments" / f"{name}.py").write_text(
+            "import pathlib\n"
+            f"def run(cfg):\n    pathlib.Path({str(ran)!r}).write_text('x')\n    return {{}}\n"
+            "def plot(arrays):\n    raise AssertionError\n")
+    configs = tmp_path / "configs" / "experiments"
+    configs.mkdir(parents=True)
+    (configs / "a_good.ci.toml").write_text("resolution = [8, 8]\n")
+    (configs / "b_bad.ci.toml").write_text("resolution = [8, 8]\nrepeats = 0\n")
+    assert main(["figures", "--root", str(tmp_path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"shadowlab: error: {configs / 'b_bad.ci.toml'}: repeats must be an "
+                          "integer >= 1, got 0")
+    assert not ran.exists() and not (tmp_path / "figures").exists()
+
+
+def test_every_user_error_exits_2_with_the_prefix(tmp_path, capsys):
+    """Config, method, scene and experiment errors all print 'shadowlab: error:' and exit 2."""
+    cases = [
+        ["run", "--set", "camera.resolution=[8,8]", "--set", "reference.soft_rays=0"],
+        ["run", "--set", "camera.resolution=[8,8]", "--set", 'methods.names=["soft_tiled"]'],
+        ["run", "--set", "camera.resolution=[8,8]", "--set", "scene.source=fuzzy",
+         "--set", "scene.params.triangles=2", "--set", "scene.params.clusters=3",
+         "--set", 'methods.names=["brute_force"]'],
+        ["figures", "--root", str(tmp_path)],
+    ]
+    for argv in cases:
+        assert main([*argv, "--quiet"] if argv[0] == "run" else argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("shadowlab: error: ") and "Traceback" not in err, (argv, err)
+
+
 def test_interrupted_write_leaves_no_half_written_file(tmp_path, monkeypatch):
     import shadowlab.io as sio
 

@@ -511,3 +511,64 @@ def test_error_broken_mesh_file_at_build(tmp_path):
         cfg.build_scene()
     assert str(info.value).startswith(f"{tmp_path / 'c.toml'}: scene.source = ")
     assert "NaN" in str(info.value)
+
+
+# --------------------------------------------------------------------------- experiment configs
+
+EXPERIMENT_CONFIGS = sorted((REPO / "configs" / "experiments").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", EXPERIMENT_CONFIGS, ids=[p.name for p in EXPERIMENT_CONFIGS])
+def test_shipped_experiment_configs_are_valid(path):
+    from shadowlab.config.experiments import load_experiment_file
+
+    assert load_experiment_file(path) == tomllib.loads(path.read_text())   # as parsed
+
+
+def test_every_experiment_has_both_sizes():
+    stems = {p.name.split(".")[0] for p in EXPERIMENT_CONFIGS}
+    assert stems == {p.stem for p in (REPO / "experiments").glob("*.py")
+                     if not p.stem.startswith("_")}
+    assert len(EXPERIMENT_CONFIGS) == 2 * len(stems)
+
+
+@pytest.mark.parametrize("text, expect", [
+    ("resolutoin = [1, 2]\n", "unknown key 'resolutoin' (did you mean 'resolution'?); "
+     "allowed keys: scene, scenes"),
+    ("resolution = [0, 2]\n", "resolution must be two positive integers [width, height], "
+     "got [0, 2]"),
+    ("precision = 'f16'\n", "precision = 'f16' is not allowed; allowed: float32, float64"),
+    ("scenes = ['gate', 'gat']\n", "scenes[1] = 'gat' is not allowed; allowed: sphere_grid, "
+     "gate"),
+    ("resolutions = [[1, 2], [3]]\n", "resolutions[1] must be two positive integers"),
+    ("seeds = [0, -1]\n", "seeds must be a non-empty list of integers >= 0, got [0, -1]"),
+    ("max_mae = 2.0\n", "max_mae must be a finite number >= 0 and <= 1, got 2.0"),
+    ("repeats = 1.5\n", "repeats must be an integer >= 1, got 1.5"),
+    ("require_claims = 'yes'\n", "require_claims must be true or false, got 'yes'"),
+    ("params = 3\n", "params must be a table, got an integer 3"),
+    ("scene = 'gate'\nparams = {tree = 3}\n", "params: gate: unknown parameter 'tree'"),
+    ("scenes = ['gate']\n[params.gat]\nn = 1\n", "unknown generator 'params.gat' (did you "
+     "mean 'gate'?)"),
+    ("scenes = ['gate']\n[params.gate]\ntrees = -1\n",
+     "params.gate: gate: parameter 'trees' must be >= 0, got -1"),
+    ("x = [1,\n", "invalid TOML"),
+])
+def test_experiment_config_errors_name_file_and_key(tmp_path, text, expect):
+    from shadowlab.config.experiments import load_experiment_file
+
+    path = write(tmp_path / "e.ci.toml", text)
+    with pytest.raises(ConfigError) as info:
+        load_experiment_file(path)
+    assert str(info.value).startswith(f"{path}: {expect}"), str(info.value)
+
+
+def test_experiment_config_error_through_figures(tmp_path):
+    from shadowlab.figures import ExperimentError, load_experiment_config
+
+    write(tmp_path / "configs" / "experiments" / "demo.ci.toml", "resolution = 'big'\n")
+    with pytest.raises(ExperimentError) as info:
+        load_experiment_config(tmp_path, "demo", "ci")
+    assert isinstance(info.value, ConfigError)
+    assert "demo.ci.toml: resolution must be two positive integers" in str(info.value)
+    with pytest.raises(ExperimentError, match="no such experiment config"):
+        load_experiment_config(tmp_path, "demo", "full")

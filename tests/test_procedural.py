@@ -127,6 +127,36 @@ def test_float_parameters():
     assert np.all(flat.vertices[:, 1] == 0.0)
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_params_model_is_built_from_the_param_specs(name):
+    """One pydantic model per generator: its fields, defaults and bounds are the Params'."""
+    from shadowlab.scene.procedural import params_model
+
+    gen = GENERATORS[name]
+    model = params_model(name)
+    assert list(model.model_fields) == list(gen.params)
+    assert model().model_dump() == gen.defaults
+    schema = model.model_json_schema()["properties"]
+    for key, spec in gen.params.items():
+        text = str(schema[key])
+        if spec.lo is not None:
+            assert f"'minimum': {spec.lo}" in text, (key, text)
+        if spec.hi is not None:
+            assert f"'maximum': {spec.hi}" in text, (key, text)
+            with pytest.raises(SceneError, match=f"'{key}' must be <= {spec.hi}"):
+                make(name, **{key: spec.kind(spec.hi * 2 + 1)})
+        if spec.lo is not None and spec.lo > 0:
+            with pytest.raises(SceneError, match=f"'{key}' must be >= {spec.lo}"):
+                make(name, **{key: spec.kind(spec.lo - 1)})
+
+
+def test_numpy_scalars_are_accepted_as_parameters():
+    a = make("soup", count=np.int64(3), seed=np.int32(1))
+    assert _same(a, make("soup", count=3, seed=1))
+    with pytest.raises(SceneError, match="'count'"):
+        make("soup", count=np.bool_(True))
+
+
 def test_impossible_combinations():
     with pytest.raises(SceneError, match="'objects'"):
         make("sphere_grid", n=2, triangles_per_sphere=6, objects=25)

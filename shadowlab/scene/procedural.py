@@ -21,7 +21,9 @@ soup           degenerate, coplanar, interpenetrating, non-manifold, open    2,0
 =============  ==========================================================  ==========
 
 Use :func:`make` (validates parameters) and :func:`default_view`; :func:`generators`
-lists every generator's parameters with their defaults. Default views are
+lists every generator's parameters with their defaults. Parameters are validated by
+one pydantic model per generator (:func:`params_model`, built from its :class:`Param`
+specifications), the same models the run configs use for ``[scene.params]``. Default views are
 256 x 256, frame the interesting region, and have near/far planes fitted to the
 geometry actually inside the view frustum (:func:`fit_clip_range`).
 
@@ -39,10 +41,11 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import numbers
-from typing import Any, Callable, Mapping
+from typing import Annotated, Any, Callable, Mapping, Optional
 
 import numpy as np
+from pydantic import (BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError,
+                      create_model)
 
 from . import primitives as prim
 from .mesh import Scene, SceneError
@@ -55,7 +58,8 @@ DEFAULT_RESOLUTION = (256, 256)
 
 @dataclasses.dataclass(frozen=True)
 class Param:
-    """One generator parameter: its default, type (int or float) and inclusive range.
+    """One generator parameter: its default, type (int or float) and inclusive range
+    ``[lo, hi]`` (``None``: unbounded), enforced by :func:`params_model`.
 
     A default of ``None`` means "derived from the other parameters" (documented per
     generator); such a parameter also accepts ``None``.
@@ -120,34 +124,62 @@ def _generator(name: str) -> Generator:
     return gen
 
 
-def _check_value(gen: Generator, key: str, value: Any) -> Any:
-    spec = gen.params[key]
-    where = f"{gen.name}: parameter {key!r}"
-    if value is None:
-        if spec.default is None:
-            return None
-        raise SceneError(f"{where} must not be None")
-    if isinstance(value, (bool, np.bool_)):
-        raise SceneError(f"{where} must be {'an integer' if spec.kind is int else 'a number'}, "
-                         f"got {value!r}")
-    if spec.kind is int:
-        if not isinstance(value, numbers.Integral):
-            raise SceneError(f"{where} must be an integer, got {value!r} "
-                             f"({type(value).__name__})")
-        value = int(value)
-    else:
-        if not isinstance(value, numbers.Real) or not math.isfinite(value):
-            raise SceneError(f"{where} must be a finite number, got {value!r}")
-        value = float(value)
-    if spec.lo is not None and value < spec.lo:
-        raise SceneError(f"{where} must be >= {spec.lo}, got {value}")
-    if spec.hi is not None and value > spec.hi:
-        raise SceneError(f"{where} must be <= {spec.hi}, got {value}")
+def _param_type(spec: Param) -> Any:
+    """The pydantic type of one parameter: a strict int or finite float within
+    ``[lo, hi]``, optional when the default is ``None``."""
+    base = StrictInt if spec.kind is int else StrictFloat
+    typ = Annotated[base, Field(ge=spec.lo, le=spec.hi, allow_inf_nan=False)]
+    return Optional[typ] if spec.default is None else typ
+
+
+@functools.lru_cache(maxsize=None)
+def params_model(name: str) -> type[BaseModel]:
+    """The pydantic model of generator ``name``'s parameters (one field per
+    :class:`Param`, with its default, type and inclusive range; unknown names are
+    refused)."""
+    gen = _generator(name)
+    fields = {k: (_param_type(spec), Field(spec.default, description=spec.doc))
+              for k, spec in gen.params.items()}
+    return create_model(f"{name}_params", __config__=ConfigDict(extra="forbid", frozen=True),
+                        **fields)
+
+
+def _plain(value: Any) -> Any:
+    """NumPy scalars as Python numbers (NumPy booleans stay booleans, and are refused)."""
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
     return value
 
 
+def _param_error(gen: Generator, err: dict) -> SceneError:
+    """The SceneError for one pydantic error of a generator's parameters."""
+    key = str(err["loc"][0])
+    spec = gen.params[key]
+    value = err["input"]
+    where = f"{gen.name}: parameter {key!r}"
+    ctx = err.get("ctx") or {}
+    if value is None:
+        return SceneError(f"{where} must not be None")
+    if isinstance(value, bool):
+        return SceneError(f"{where} must be {'an integer' if spec.kind is int else 'a number'}, "
+                          f"got {value!r}")
+    if "ge" in ctx:
+        return SceneError(f"{where} must be >= {spec.lo}, got {value}")
+    if "le" in ctx:
+        return SceneError(f"{where} must be <= {spec.hi}, got {value}")
+    if spec.kind is int:
+        return SceneError(f"{where} must be an integer, got {value!r} "
+                          f"({type(value).__name__})")
+    return SceneError(f"{where} must be a finite number, got {value!r}")
+
+
 def resolve_params(name: str, **params) -> dict:
-    """The complete, validated parameter dict of generator ``name``.
+    """The complete, validated parameter dict of generator ``name``
+    (:func:`params_model`).
 
     Raises:
         SceneError: unknown generator, unknown parameter (listing the allowed ones),
@@ -159,9 +191,11 @@ def resolve_params(name: str, **params) -> dict:
         raise SceneError(f"{name}: unknown parameter{'s' if len(unknown) > 1 else ''} "
                          f"{', '.join(map(repr, unknown))}; allowed: "
                          f"{', '.join(gen.defaults)}")
-    merged = dict(gen.defaults)
-    merged.update(params)
-    return {k: _check_value(gen, k, v) for k, v in merged.items()}
+    try:
+        model = params_model(name).model_validate({k: _plain(v) for k, v in params.items()})
+    except ValidationError as exc:
+        raise _param_error(gen, exc.errors()[0]) from None
+    return model.model_dump()
 
 
 def _scene_name(gen: Generator, params: dict) -> str:
