@@ -32,3 +32,61 @@ def test_readme_has_exactly_two_setup_commands_and_ci_uses_the_test_one():
     assert len(blocks) == 2
     assert "shadowlab run" in blocks[0] and "pytest" in blocks[1]
     assert blocks[1] in (ROOT / ".ci" / "run").read_text()
+
+
+def test_benchmarks_doc_is_generated_from_the_committed_json(tmp_path):
+    """Regenerating docs/benchmarks.md from docs/bench_ci.json gives the committed file
+    (the hand-written part below the marker is kept)."""
+    from shadowlab.harness import bench_report
+
+    committed = (ROOT / "docs" / "benchmarks.md").read_text()
+    assert bench_report.KEEP_MARKER in committed
+    out = tmp_path / "benchmarks.md"
+    out.write_text(committed)
+    bench_report.write_benchmarks_md([ROOT / "docs" / "bench_ci.json"], out)
+    assert out.read_text() == committed, (
+        "regenerate: python -m shadowlab.harness.bench_report docs/bench_ci.json "
+        "--out docs/benchmarks.md")
+
+
+def test_bench_report_renders_hard_and_soft_cases():
+    """Every number of a hand-made bench result appears, converted to ms, in its row."""
+    from shadowlab.harness import bench_report
+
+    hard = {"stages": {"setup": 0.002, "test": 0.0405, "total": 0.0425}, "compile_seconds": 1.5,
+            "median_seconds": 0.0425, "ratio_to_reference": 4.25, "tests_per_second": 2.5e9,
+            "error": {"valid_pixels": 100, "mismatches": 3}}
+    soft = {"stages": {"eval": 0.25, "total": 0.25}, "compile_seconds": 0.25,
+            "median_seconds": 0.25, "embree_seconds_at_equal_error": 0.75,
+            "error": {"valid_pixels": 100, "mae": 0.0012, "rmse": 0.015, "max_error": 0.5,
+                      "ssim": 0.975}}
+    case = {"name": "c1", "scene": "s", "triangles": 1234, "resolution": [16, 8],
+            "valid_pixels": 100, "reference": {"median_seconds": 0.01, "runs": [0.01]},
+            "soft_reference": {"rays": 256, "curve": [{"rays": 4, "seconds": 0.5, "mae": 0.003}]},
+            "methods": {"m_hard": hard, "m_soft": soft, "m_skip": {"skipped": "no area light"}}}
+    text = bench_report.render([("x.json", {"repeats": 2, "cases": [case]})])
+    rows = {line.split("|")[1].strip(): line for line in text.splitlines() if line.startswith("| `")}
+    assert rows["`m_hard`"].split("|")[2:7] == [" 42.5 ", " 1.50 ", " 4.25 ", " 3 of 100 ", " 2.50 G "]
+    assert "setup 2.0, test 40.5" in rows["`m_hard`"]
+    assert rows["`m_soft`"].split("|")[2:9] == [" 250.0 ", " 0.25 ", " 0.0012 ", " 0.0150 ",
+                                                 " 0.500 ", " 0.9750 ", " 750.0 "]
+    assert "skipped: no area light" in rows["`m_skip`"]
+    assert "4 rays 500.0 ms MAE 0.0030" in text and "1,234 triangles, 16x8" in text
+    assert "Machine load: not recorded" in text
+
+
+def test_public_files_do_not_point_into_the_workspace():
+    """No project file cites the private workspace, its design notes or paper files."""
+    import re
+
+    # the patterns are assembled so that this file does not match itself
+    bad = re.compile("|".join(["shared" + "/", "DESIGN" + r"\.md", "papers" + "/",
+                               r"\b[a-z]+(?:19|20)\d\d-[a-z0-9-]+\.(?:txt|md)\b"]))
+    files = [ROOT / "README.md", *ROOT.joinpath("docs").glob("*.md")]
+    for folder in ("shadowlab", "tests", "experiments", "configs"):
+        files += [p for p in ROOT.joinpath(folder).rglob("*")
+                  if p.suffix in (".py", ".toml", ".md") and p.is_file()]
+    hits = [f"{p.relative_to(ROOT)}:{i}" for p in files
+            for i, line in enumerate(p.read_text(errors="replace").splitlines(), 1)
+            if bad.search(line)]
+    assert not hits, hits

@@ -159,7 +159,7 @@ def _test_kernel(chunk: int):
 
 
 @register("brute_force", doc="every view sample against every triangle's shadow volume "
-          "(the exact oracle)", paper="DESIGN.md (oracle)",
+          "(the exact oracle)", paper="none (the exact oracle; docs/conventions.md)",
           options={"chunk": Option(16, "triangles per unrolled loop step", allowed=(4, 8, 16, 32)),
                    "bias": Option("receiver", "self-shadowing bias: 'receiver' = eps above the "
                                   "receiver's tangent plane (as the reference), 'cap' = eps "

@@ -700,7 +700,7 @@ COMMON_SOFT = {
 
 @register("soft_tiled", exact=False, soft=True,
           doc="tiled per-triangle soft shadows: sun-disk bitmask rasterizer with cone "
-              "culling per 16x16 tile", paper="kalbertodt2023-tiled-soft-shadow-volumes",
+              "culling per 16x16 tile", paper="Kalbertodt 2023",
           options={"grid": GRID_OPTION,
                    "rotate": Option(True, "random grid rotation per pixel (against banding)",
                                     allowed=(True, False)),
@@ -723,7 +723,7 @@ def soft_tiled(scene, gbuf, light, **opts):
 
 @register("soft_overlap_sum", exact=False, soft=True,
           doc="naive comparison: sum of analytic disk-triangle overlap areas (double-counts "
-              "overlapping occluders)", paper="kalbertodt2023-tiled-soft-shadow-volumes",
+              "overlapping occluders)", paper="Kalbertodt 2023",
           options=dict(COMMON_SOFT))
 def soft_overlap_sum(scene, gbuf, light, **opts):
     culling, rest = split_culling(opts)

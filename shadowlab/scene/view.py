@@ -1,6 +1,6 @@
 """Cameras, lights and key-frame animations.
 
-Conventions (DESIGN.md): view space looks down -Z, clip space is OpenGL's
+Conventions (docs/conventions.md): view space looks down -Z, clip space is OpenGL's
 ([-w, w] on every axis), pixel (0, 0) is the top-left pixel and primary rays pass
 through pixel centres. Resolutions are (width, height); image arrays are [H, W].
 """

@@ -1,0 +1,1 @@
+"""The harness: running methods against the reference, timing them and reporting."""
