@@ -1,4 +1,5 @@
-"""Scenes (triangle soups, loaded or procedural), cameras, lights and animations."""
+"""Scenes (triangle soups, loaded or procedural), cameras, lights and animations;
+edge adjacency (:mod:`.adjacency`) and light-space cameras (:mod:`.light_camera`)."""
 
 from .mesh import (ObjectReport, Scene, SceneError, SceneReport, SUPPORTED_FORMATS,
                    load_scene, mesh_report)
@@ -6,9 +7,11 @@ from .view import (Animation, Camera, DirectionalLight, Light, PointLight, Spher
                    hard_light)
 from .procedural import GENERATORS, default_view, generators, make
 from .adjacency import Adjacency, AdjacencyReport, build_adjacency
+from .light_camera import LightCamera, LightFace, box_corners, fit_light_camera
 
 __all__ = [
-    "Adjacency", "AdjacencyReport", "build_adjacency",
+    "Adjacency", "AdjacencyReport", "LightCamera", "LightFace", "box_corners",
+    "build_adjacency", "fit_light_camera",
     "Animation", "Camera", "DirectionalLight", "GENERATORS", "Light", "ObjectReport",
     "PointLight", "SUPPORTED_FORMATS", "Scene", "SceneError", "SceneReport", "SphereLight",
     "View", "default_view", "generators", "hard_light", "load_scene", "make", "mesh_report",
