@@ -123,6 +123,17 @@ class Scene:
     def report(self) -> SceneReport:
         return mesh_report(self)
 
+    def adjacency(self, scope: str = "object", max_opposite: int = 2, dtype=np.float64):
+        """The edge adjacency (:class:`shadowlab.scene.adjacency.Adjacency`), built
+        once per (scope, max_opposite, dtype) and cached on this scene."""
+        from .adjacency import adjacency_key, build_adjacency
+
+        key = adjacency_key(scope, max_opposite, dtype)
+        cache = self.__dict__.setdefault("_adjacency_cache", {})
+        if key not in cache:
+            cache[key] = build_adjacency(self, *key)
+        return cache[key]
+
     @staticmethod
     def concatenate(parts: list["Scene"], name: str = "scene") -> "Scene":
         """Join scenes into one soup; every part keeps its own object ids."""

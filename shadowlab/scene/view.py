@@ -25,6 +25,39 @@ def _normalize(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
+def look_at_basis(eye: np.ndarray, target: np.ndarray, up: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(right, up, back) orthonormal world vectors of a view from ``eye`` towards
+    ``target`` (float64 [3] each); the view looks along -back."""
+    back = _normalize(eye - target)
+    right = _normalize(np.cross(up, back))
+    up = np.cross(back, right)
+    return right, up, back
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """float64 [4, 4]: world -> view (right-handed, looking down -Z)."""
+    r, u, b = look_at_basis(eye, target, up)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3] = r, u, b
+    m[:3, 3] = -m[:3, :3] @ eye
+    return m
+
+
+def perspective(fov_y_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
+    """float64 [4, 4]: OpenGL perspective projection, view -> clip (fov in degrees,
+    aspect = width / height, 0 < near < far in world units)."""
+    f = 1.0 / math.tan(math.radians(fov_y_deg) / 2)
+    n, fa = near, far
+    m = np.zeros((4, 4))
+    m[0, 0] = f / aspect
+    m[1, 1] = f
+    m[2, 2] = (fa + n) / (n - fa)
+    m[2, 3] = 2 * fa * n / (n - fa)
+    m[3, 2] = -1.0
+    return m
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Camera:
     """A look-at pinhole camera.
@@ -79,30 +112,15 @@ class Camera:
 
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(right, up, back) orthonormal world vectors; the camera looks along -back."""
-        back = _normalize(self.eye - self.target)
-        right = _normalize(np.cross(self.up, back))
-        up = np.cross(back, right)
-        return right, up, back
+        return look_at_basis(self.eye, self.target, self.up)
 
     def view_matrix(self) -> np.ndarray:
         """float64 [4, 4]: world -> view (right-handed, looking down -Z)."""
-        r, u, b = self.basis()
-        m = np.eye(4)
-        m[0, :3], m[1, :3], m[2, :3] = r, u, b
-        m[:3, 3] = -m[:3, :3] @ self.eye
-        return m
+        return look_at(self.eye, self.target, self.up)
 
     def projection_matrix(self) -> np.ndarray:
         """float64 [4, 4]: OpenGL perspective projection, view -> clip."""
-        f = 1.0 / math.tan(math.radians(self.fov_y_deg) / 2)
-        n, fa = self.near, self.far
-        m = np.zeros((4, 4))
-        m[0, 0] = f / self.aspect
-        m[1, 1] = f
-        m[2, 2] = (fa + n) / (n - fa)
-        m[2, 3] = 2 * fa * n / (n - fa)
-        m[3, 2] = -1.0
-        return m
+        return perspective(self.fov_y_deg, self.aspect, self.near, self.far)
 
     def view_projection(self) -> np.ndarray:
         """float64 [4, 4]: world -> clip."""
