@@ -57,14 +57,9 @@ Modules: :mod:`.schema` (one pydantic model per table; the validated config obje
 (scene, camera and light resolution), :mod:`.resources` (the memory estimate).
 
 Light resolution (done by :meth:`RunConfig.views`, which knows the scene; see
-:mod:`.views`): without
-``light.type`` the scene's default light keeps its type and the given keys change it;
-with a type, missing keys are taken from the scene's default light where it has them
-(a position from a point or sphere light, a direction from a directional light or sun;
-a direction from a point light is the one from the light to the scene's centre, a
-position from a directional light lies one scene diagonal up-light of the centre).
-A sun's ``angular_radius_deg`` defaults to 0.27 (the real sun); a sphere light's
-``radius`` has no default unless the scene's default light is a sphere.
+:mod:`.views`): without ``light.type`` the scene's default light keeps its type and the
+given keys change it; with a type, missing keys come from the scene's default light
+where it has them.
 
 Method options: ``shadow_eps`` (a common option of every method) defaults to
 ``reference.shadow_eps``, so methods and the Embree reference use the same offset

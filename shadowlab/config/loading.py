@@ -29,7 +29,7 @@ from .errors import (BUILTIN_DEFAULT, OVERRIDE_LABEL, ConfigError, Context, did_
                      from_validation_error, show)
 from .schema import (AnimationConfig, CameraConfig, LightConfig, MethodsConfig, MethodsTable,
                      OutputConfig, ReferenceConfig, RunConfig, RunFile, SceneConfig,
-                     SceneTable, _NONZERO_VEC3)
+                     SceneTable, NONZERO_VEC3)
 
 _KEY_SEGMENT = re.compile(r"^[A-Za-z0-9_-]+$")
 
@@ -228,7 +228,7 @@ def _read_animation(ctx: Context, table: dict, light: LightConfig) -> AnimationC
     if light.type in ("directional", "sun") and anim.light_keys is not None:
         for i, vec in enumerate(anim.light_keys):   # directions: non-zero
             if not any(vec):
-                raise ctx.error(f"animation.light_keys[{i}]", f"must be {_NONZERO_VEC3}, got "
+                raise ctx.error(f"animation.light_keys[{i}]", f"must be {NONZERO_VEC3}, got "
                                 f"{show(table['light_keys'][i])}")
     return anim
 

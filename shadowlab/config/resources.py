@@ -8,10 +8,11 @@ below follow the dtypes of :func:`shadowlab.raycast.render_gbuffer`,
   Embree's hit record, the G-buffer (position and normal float64 x 3, depth float64,
   triangle int32, valid bool), the reference's shadow rays (origin, direction float64
   x 3, length float64) and one method's working set (float32 samples and normals,
-  int32 counters), methods running one after another;
+  int64 counters), methods running one after another;
 - kept for every frame until the outputs are written (and stacked once more when they
-  are): the valid and reference masks, each method's lit mask and per-pixel counter
-  maps, and the float64 soft reference when a soft method runs.
+  are): the valid and reference masks, each method's result (a bool mask, or float64
+  visibility for a soft method) and per-pixel int64 counter maps (at most six; the
+  soft methods have five), and the float64 soft reference when a soft method runs.
 
 :func:`memory_limit` is a fraction (:data:`MEMORY_FRACTION`) of the memory available
 now (``MemAvailable`` of ``/proc/meminfo``, else ``os.sysconf``), or the bytes given by
@@ -37,9 +38,9 @@ PRIMARY_RAYS = 2 * 3 * 8            # origins, directions: float64 [H, W, 3]
 EMBREE_HITS = 48                    # float32 ray copies, tfar, u, v, primID, geomID
 GBUFFER = 3 * 8 + 3 * 8 + 8 + 4 + 1  # position, normal, depth, triangle, valid
 REFERENCE_RAYS = 3 * 8 + 3 * 8 + 8 + 1  # shadow-ray origin, direction, length; lit
-METHOD_WORK = 3 * 4 + 3 * 4 + 4 * 4 + 1  # float32 samples, normals; counters; lit
+METHOD_WORK = 3 * 4 + 3 * 4 + 6 * 8 + 8  # float32 samples, normals; counters; lit
 KEPT_FRAME = 1 + 1                  # valid, reference
-KEPT_METHOD = 1 + 4 * 4             # lit mask, up to four int32 counter maps
+KEPT_METHOD = 8 + 6 * 8             # lit (float64 for soft), up to six int64 maps
 KEPT_SOFT = 8                       # float64 soft reference
 STACK_COPIES = 2                    # the per-frame lists and their np.stack
 

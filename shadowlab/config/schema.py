@@ -74,10 +74,10 @@ def _nonzero(vec: tuple[float, float, float]) -> tuple[float, float, float]:
 
 _XYZ = tuple[StrictFloat, StrictFloat, StrictFloat]
 _VEC3 = "3 finite numbers [x, y, z]"
-_NONZERO_VEC3 = "a non-zero vector of 3 finite numbers [x, y, z]"
+NONZERO_VEC3 = "a non-zero vector of 3 finite numbers [x, y, z]"
 Vec3 = Annotated[Optional[_XYZ], _wanted(_VEC3)]
 NonZeroVec3 = Annotated[Optional[Annotated[_XYZ, AfterValidator(_nonzero)]],
-                        _wanted(_NONZERO_VEC3)]
+                        _wanted(NONZERO_VEC3)]
 Keys = Annotated[Optional[Annotated[tuple[_XYZ, ...], Field(min_length=1)]],
                  _wanted("a non-empty list of [x, y, z] keys", item_wanted=_VEC3)]
 Resolution = Annotated[Optional[tuple[Annotated[StrictInt, Field(ge=1)],
