@@ -116,7 +116,7 @@ def test_deterministic_and_timed():
 # --------------------------------------------------------------------------- setup rounding
 
 def _numpy_setup(tri, light):
-    """brute_force.setup as plain NumPy, one IEEE operation at a time (NumPy never fuses
+    """shadow_volume_planes as plain NumPy, one IEEE operation at a time (NumPy never fuses
     a multiply into an add): planes [T, 16], valid [T]."""
     dt = tri.dtype.type
     tol = dt(64 * np.finfo(dt).eps)
@@ -201,12 +201,12 @@ SETUP_SCENES = {"gate": {"trees": 3, "leaves_per_tree": 60, "bars": 4},
 
 
 def test_setup_rounding_is_the_same_at_every_size(precision):
-    """brute_force.setup and post_perspective_planes equal a NumPy op-by-op loop bit for
+    """shadow_volume_planes and post_perspective_planes equal a NumPy op-by-op loop bit for
     bit, on the triangles as they are and padded to the capacity clustered_ptsv pads
     them to (XLA's FMA contraction used to depend on that size)."""
     import jax.numpy as jnp
 
-    from shadowlab.methods.brute_force import setup
+    from shadowlab.geometry.triangle_setup import shadow_volume_planes as setup
     from shadowlab.methods.common import precision_mode
     from shadowlab.methods.volume_planes import post_perspective_planes
     from shadowlab.scene.view import hard_light

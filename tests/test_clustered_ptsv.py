@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import shadowlab as sl
-from shadowlab.geometry.planes import shadow_volume_planes, to_clip_space
+from shadowlab.geometry.triangle_setup import shadow_volume_planes
 from shadowlab.methods import cluster_hierarchy as ch
 from shadowlab.methods.clustered_ptsv import post_perspective_planes, run_traversal_method
 from shadowlab.scene.procedural import default_view
@@ -193,6 +193,7 @@ def test_post_perspective_planes_orientation_and_shared_edges(precision):
     from shadowlab.methods.common import precision_mode
     with precision_mode(precision):
         planes, valid = shadow_volume_planes(jnp.asarray(tris, dtype), jnp.asarray(light, dtype))
+        planes = planes.reshape(-1, 4, 4)
         inv_view = jnp.asarray(np.linalg.inv(cam.view_matrix()), dtype)
         f = 1 / np.tan(np.radians(cam.fov_y_deg) / 2)
         g, tol = post_perspective_planes(planes, inv_view, jnp.asarray(2.0, dtype),
@@ -200,7 +201,8 @@ def test_post_perspective_planes_orientation_and_shared_edges(precision):
                                          p00=f / cam.aspect, p11=f)
         g = np.asarray(g, np.float64)
     planes = np.asarray(planes, np.float64)
-    # same sign as the world plane and as to_clip_space, at random points in the frustum
+    # same sign as the world plane and as the clip-space plane (the world plane times
+    # inv(view_projection)), at random points in the frustum
     pts = rng.uniform(-3, 3, (200, 3))
     v = pts @ cam.view_matrix()[:3, :3].T + cam.view_matrix()[:3, 3]
     keep = -v[:, 2] > cam.near
@@ -210,7 +212,7 @@ def test_post_perspective_planes_orientation_and_shared_edges(precision):
     world = np.einsum("tpi,si->tsp", planes[..., :3], pts) + planes[None, :, :, 3].transpose(1, 0, 2)
     post = np.einsum("tpi,si->tsp", g[:, :4], npp) * wq[None, :, None]
     np.testing.assert_allclose(post, world, rtol=1e-4, atol=1e-4 if dtype == np.float32 else 1e-9)
-    clip = np.asarray(to_clip_space(jnp.asarray(planes), jnp.asarray(cam.view_projection())))
+    clip = planes @ np.linalg.inv(cam.view_projection())
     hom = np.concatenate([pts, np.ones((len(pts), 1))], 1) @ cam.view_projection().T
     np.testing.assert_allclose(np.einsum("tpi,si->tsp", clip, hom), world, rtol=1e-4, atol=1e-4)
     # shared edge: exactly negated world planes give exactly negated post-perspective rows

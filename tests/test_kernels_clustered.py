@@ -77,12 +77,12 @@ def _check_equal(name, form, directional=False, job_order=None, **opts):
 @pytest.mark.parametrize("name", list(SCENES))
 def test_setup_is_bit_exact(name):
     """The setup kernel equals the JAX setup bit for bit: world planes and validity
-    (``brute_force.setup``), post-perspective rows, extra planes and tolerances
+    (``shadow_volume_planes``), post-perspective rows, extra planes and tolerances
     (``post_perspective_planes``), both as the JAX method computes them (triangles
     padded to its capacity) and on the unpadded triangles; keys and casters too."""
     import jax.numpy as jnp
 
-    from shadowlab.methods.brute_force import setup
+    from shadowlab.geometry.triangle_setup import shadow_volume_planes as setup
     from shadowlab.methods.volume_planes import post_perspective_planes
     from shadowlab.scene.view import hard_light
 

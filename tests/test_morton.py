@@ -62,3 +62,17 @@ def test_32_bit_keys_in_jax_match_numpy():
     back = jax.jit(lambda k: decode(k, lay, 3, xp=jnp))(kj)
     for c, b in zip(coords, back):
         np.testing.assert_array_equal(c, np.asarray(b))
+
+
+def test_soft_tiled_cluster_keys_are_3d_interleaved_10_bit_codes():
+    """soft_tiled orders triangles by 10-bit 3-D Morton codes of their centroids:
+    coordinate bit b of axis a at key bit 3 b + a."""
+    q = np.random.default_rng(5).integers(0, 1024, (500, 3))
+    want = np.zeros(len(q), np.uint64)
+    for b in range(10):
+        for a in range(3):
+            want |= ((q[:, a].astype(np.uint64) >> np.uint64(b)) & np.uint64(1)) \
+                << np.uint64(3 * b + a)
+    got = encode(q.T, round_robin_layout((10, 10, 10)))
+    assert got.dtype == np.uint32
+    np.testing.assert_array_equal(got.astype(np.uint64), want)

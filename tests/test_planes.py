@@ -1,15 +1,140 @@
-"""Shadow-volume planes: orientation, shared-edge exactness, inclusion vs a segment test."""
+"""The canonical triangle setup (``geometry.triangle_setup``), the one every exact method
+runs: bit-equality with a plain per-triangle NumPy loop, orientation, shared-edge
+exactness, inclusion against a segment test, validity."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
-from shadowlab.geometry.planes import in_shadow_volume, shadow_volume_planes, to_clip_space
+from shadowlab.core.capacity import bucket, pad
+from shadowlab.geometry.triangle_setup import lex_less, shadow_volume_planes
+from shadowlab.methods.common import precision_mode
 
-_planes_jit = jax.jit(shadow_volume_planes)
 coord = st.floats(-10, 10, allow_nan=False, allow_infinity=False, width=32)
 point = st.tuples(coord, coord, coord)
+
+
+def _setup(tri, light):
+    """shadow_volume_planes as NumPy: planes [T, 4, 4], valid [T]."""
+    planes, valid = shadow_volume_planes(jnp.asarray(tri), jnp.asarray(light))
+    return np.asarray(planes).reshape(-1, 4, 4), np.asarray(valid)
+
+
+def _loop_setup(tri, light):
+    """The setup one triangle at a time with NumPy scalars of tri's dtype (each operation
+    rounded once, nothing fused): planes [T, 4, 4], valid [T]."""
+    dt = tri.dtype.type
+    tol = dt(64) * dt(np.finfo(dt).eps)
+    lxyz, lw = [dt(x) for x in light[:3]], dt(light[3])
+
+    def dot(a, b):
+        return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+    def sub(a, b):
+        return [a[k] - b[k] for k in range(3)]
+
+    def oriented(n, d, flip):
+        if flip:
+            n, d = [-x for x in n], -d
+        length = np.sqrt(dot(n, n))
+        safe = length if length > 0 else dt(1)
+        return [n[0] / safe, n[1] / safe, n[2] / safe, d / safe], length
+
+    planes = np.zeros((len(tri), 4, 4), dt)
+    valid = np.zeros(len(tri), bool)
+    for t in range(len(tri)):
+        v = [[tri[t, i, k] for k in range(3)] for i in range(3)]
+        ok = True
+        for i in range(3):
+            a, b, c = v[i], v[(i + 1) % 3], v[(i + 2) % 3]
+            lo, hi = (b, a) if tuple(b) < tuple(a) else (a, b)
+            n = cross(sub(hi, lo), [lxyz[k] - lw * lo[k] for k in range(3)])
+            d = -dot(n, lo)
+            side = dot(n, c) + d
+            planes[t, i], length = oriented(n, d, side < 0)
+            reach = max(np.sqrt(dot(sub(c, a), sub(c, a))), np.sqrt(dot(sub(c, b), sub(c, b))))
+            ok &= bool(length > 0) and bool(abs(side) > (tol * length) * reach)
+        cn = cross(sub(v[1], v[0]), sub(v[2], v[0]))
+        cd = -dot(cn, v[0])
+        light_side = dot(cn, lxyz) + lw * cd
+        planes[t, 3], length = oriented(cn, cd, light_side < 0)
+        to_light = [lxyz[k] - lw * v[0][k] for k in range(3)]
+        reach = np.sqrt(dot(to_light, to_light))
+        ok &= bool(length > 0) and bool(abs(light_side) > (tol * length) * reach)
+        valid[t] = ok
+    return planes, valid
+
+
+def _triangles(rng, n):
+    """Random triangles [n, 3, 3] with shared edges, repeated and collinear vertices."""
+    tri = rng.uniform(-2, 2, (n, 3, 3))
+    tri[1::4, 0], tri[1::4, 1] = tri[0::4, 1], tri[0::4, 0]       # shared edges, reversed
+    tri[2::8, 2] = tri[2::8, 1]                                   # repeated vertex
+    tri[3::8, 2] = 2 * tri[3::8, 1] - tri[3::8, 0]                # collinear
+    return tri
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+@pytest.mark.parametrize("light", [[0.5, 8.0, -0.3, 1.0], [0.3, 1.0, 0.2, 0.0]])
+def test_setup_equals_a_numpy_loop_at_every_padding(precision, light):
+    rng = np.random.default_rng(7)
+    with precision_mode(precision) as dt:
+        tri = _triangles(rng, 96).astype(dt)
+        lh = np.asarray(light, dt)
+        want, want_ok = _loop_setup(tri, lh)
+        assert 0 < want_ok.sum() < len(tri)
+        for cap in (len(tri), bucket(len(tri), minimum=16), 1024):
+            planes, valid = _setup(pad(tri, cap), lh)
+            assert planes.dtype == dt
+            np.testing.assert_array_equal(planes[: len(tri)], want)
+            np.testing.assert_array_equal(valid[: len(tri)], want_ok)
+
+
+def test_setup_rounds_the_same_inside_another_program():
+    """Inlined into a bigger jitted program (where XLA could fuse its products into
+    FMAs), the setup keeps its bits."""
+    rng = np.random.default_rng(8)
+    tri = jnp.asarray(rng.uniform(-3, 3, (200, 3, 3)).astype(np.float32))
+    light = jnp.asarray([1.0, 5.0, 2.0, 1.0], jnp.float32)
+
+    @jax.jit
+    def fused(tri, light):
+        planes, valid = shadow_volume_planes(tri * 1.0, light)
+        return planes * 2.0 + 1.0, valid
+
+    alone, ok = shadow_volume_planes(tri, light)
+    inside, ok2 = fused(tri, light)
+    np.testing.assert_array_equal(np.asarray(alone) * np.float32(2) + np.float32(1),
+                                  np.asarray(inside))
+    np.testing.assert_array_equal(np.asarray(ok), np.asarray(ok2))
+
+
+def test_lex_less_is_tuple_order():
+    rng = np.random.default_rng(9)
+    a = rng.integers(-1, 2, (300, 3)).astype(np.float32)
+    b = rng.integers(-1, 2, (300, 3)).astype(np.float32)
+    got = np.asarray(lex_less(list(jnp.asarray(a).T), list(jnp.asarray(b).T)))
+    assert got.tolist() == [tuple(x) < tuple(y) for x, y in zip(a, b)]
+
+
+@settings(max_examples=60, deadline=None)
+@given(a=point, b=point, c=point, d=point, light=point)
+def test_shared_edges_get_exactly_negated_planes(a, b, c, d, light):
+    # Triangles (a, b, c) and (b, a, d) share edge ab, listed in opposite orders.
+    tri = np.array([[a, b, c], [b, a, d]], np.float32)
+    planes, valid = _setup(tri, np.array([*light, 1.0], np.float32))
+    if valid.all():
+        c_side = np.asarray(c) @ planes[0, 0, :3] + planes[0, 0, 3]
+        d_side = np.asarray(d) @ planes[0, 0, :3] + planes[0, 0, 3]
+        if c_side * d_side < 0:    # third vertices on opposite sides: volumes are neighbours
+            np.testing.assert_array_equal(planes[0, 0], -planes[1, 0])
+        elif c_side * d_side > 0:
+            np.testing.assert_array_equal(planes[0, 0], planes[1, 0])
 
 
 def _segment_hits_triangle(p, light, tri):
@@ -29,76 +154,44 @@ def _segment_hits_triangle(p, light, tri):
     return u >= 0 and v >= 0 and u + v <= 1 and 1e-9 < t < 1 - 1e-9
 
 
-@settings(max_examples=60, deadline=None)
-@given(a=point, b=point, c=point, d=point, light=point)
-def test_shared_edges_get_exactly_negated_planes(a, b, c, d, light):
-    # Triangles (a, b, c) and (b, a, d) share edge ab, listed in opposite orders.
-    tri = jnp.asarray(np.array([[a, b, c], [b, a, d]], np.float32))
-    lh = jnp.asarray(np.array([*light, 1.0], np.float32))
-    planes, valid = _planes_jit(tri, lh)
-    planes = np.asarray(planes)
-    if np.asarray(valid).all():
-        c_side = np.asarray(c) @ planes[0, 0, :3] + planes[0, 0, 3]
-        d_side = np.asarray(d) @ planes[0, 0, :3] + planes[0, 0, 3]
-        if c_side * d_side < 0:    # third vertices on opposite sides: volumes are neighbours
-            np.testing.assert_array_equal(planes[0, 0], -planes[1, 0])
-        elif c_side * d_side > 0:
-            np.testing.assert_array_equal(planes[0, 0], planes[1, 0])
+def _inside(planes, pts, cap_bias):
+    """bool [P]: pts [P, 3] inside all three edge planes and more than cap_bias behind
+    the cap of one volume planes [4, 4]."""
+    dist = pts @ planes[:, :3].T + planes[:, 3]
+    return np.all(dist[:, :3] >= 0, axis=1) & (dist[:, 3] < -cap_bias)
 
 
 def test_planes_are_oriented_and_inclusion_matches_segment_test():
     rng = np.random.default_rng(0)
     light = np.array([0.5, 8.0, -0.3])
     tris = rng.uniform(-2, 2, (40, 3, 3)) + [0, 3, 0]
-    planes, valid = shadow_volume_planes(jnp.asarray(tris), jnp.asarray(np.append(light, 1.0)))
-    planes = np.asarray(planes)
-    assert np.asarray(valid).all()
+    with precision_mode("float64"):
+        planes, valid = _setup(tris, np.append(light, 1.0))
+    assert valid.all()
     # interior of each triangle is inside its edge planes; the light is in front of the cap
     centroids = tris.mean(axis=1)
     assert np.all(np.einsum("tpi,ti->tp", planes[:, :3, :3], centroids) + planes[:, :3, 3] > 0)
     assert np.all(planes[:, 3, :3] @ light + planes[:, 3, 3] > 0)
     pts = rng.uniform(-6, 6, (400, 3)) * [1, 0.5, 1]
     for t in range(len(tris)):
-        got = np.asarray(in_shadow_volume(jnp.asarray(planes[t]), jnp.asarray(pts), 0.0))
         want = np.array([_segment_hits_triangle(p, light, tris[t]) for p in pts])
-        assert np.array_equal(got, want), t
+        assert np.array_equal(_inside(planes[t], pts, 0.0), want), t
 
 
 def test_degenerate_and_edge_on_triangles_are_invalid():
-    light = jnp.asarray([0.0, 10.0, 0.0, 1.0])
-    tri = jnp.asarray(np.array([
+    tri = np.array([
         [[0, 0, 0], [1, 0, 0], [2, 0, 0]],        # collinear
         [[0, 0, 0], [0, 0, 0], [0, 0, 1]],        # repeated vertex
         [[0, 0, 0], [1, 0, 0], [0, 5, 0]],        # plane z = 0 contains the light
         [[0, 0, 0], [1, 0, 0], [0, 0, 1]],        # a proper triangle
-    ], np.float32))
-    _, valid = shadow_volume_planes(tri, light)
-    assert np.asarray(valid).tolist() == [False, False, False, True]
+    ], np.float32)
+    _, valid = _setup(tri, np.array([0.0, 10.0, 0.0, 1.0], np.float32))
+    assert valid.tolist() == [False, False, False, True]
 
 
 def test_directional_light_volume_is_a_prism():
-    tri = np.array([[[0, 1, 0], [1, 1, 0], [0, 1, 1]]], float)
-    light = jnp.asarray([0.0, 1.0, 0.0, 0.0])          # light comes from +Y
-    planes, valid = shadow_volume_planes(jnp.asarray(tri), light)
-    pts = jnp.asarray([[0.2, -5, 0.2], [0.2, 0.5, 0.2], [0.9, -1, 0.9], [0.2, 2, 0.2]])
-    assert np.asarray(in_shadow_volume(planes[0], pts, 1e-6)).tolist() == [True, True, False, False]
-
-
-def test_clip_space_planes_keep_the_sign_of_distances():
-    rng = np.random.default_rng(1)
-    vp = rng.normal(size=(4, 4)) + 4 * np.eye(4)
-    planes = rng.normal(size=(5, 4))
-    pts = np.c_[rng.normal(size=(50, 3)), np.ones(50)]
-    clip_pts = pts @ vp.T
-    clip_planes = np.asarray(to_clip_space(jnp.asarray(planes), jnp.asarray(vp)))
-    np.testing.assert_allclose(clip_pts @ clip_planes.T, pts @ planes.T, rtol=1e-6, atol=1e-6)
-
-
-def test_jit_matches_eager():
-    rng = np.random.default_rng(2)
-    tri = jnp.asarray(rng.normal(size=(16, 3, 3)).astype(np.float32))
-    light = jnp.asarray([1.0, 5.0, 2.0, 1.0], jnp.float32)
-    eager = shadow_volume_planes(tri, light)
-    jitted = jax.jit(shadow_volume_planes)(tri, light)
-    np.testing.assert_allclose(np.asarray(eager[0]), np.asarray(jitted[0]), rtol=1e-6, atol=1e-6)
-    assert np.array_equal(np.asarray(eager[1]), np.asarray(jitted[1]))
+    tri = np.array([[[0, 1, 0], [1, 1, 0], [0, 1, 1]]], np.float32)
+    planes, valid = _setup(tri, np.array([0.0, 1.0, 0.0, 0.0], np.float32))  # from +Y
+    assert valid.all()
+    pts = np.array([[0.2, -5, 0.2], [0.2, 0.5, 0.2], [0.9, -1, 0.9], [0.2, 2, 0.2]])
+    assert _inside(planes[0], pts, 1e-6).tolist() == [True, True, False, False]

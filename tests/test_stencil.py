@@ -46,13 +46,13 @@ def _crossings(p, eye, near_l, planes):
 
 def test_update_counts_against_a_loop():
     scene, gbuf, light = _setup("sphere_grid", res=24)
-    from shadowlab.geometry.planes import shadow_volume_planes
+    from shadowlab.geometry.triangle_setup import shadow_volume_planes
     from shadowlab.methods.common import precision_mode, view_samples
     import jax.numpy as jnp
     with precision_mode("float64"):
         planes, valid = shadow_volume_planes(jnp.asarray(scene.triangles),
                                              jnp.asarray(light.homogeneous))
-        planes, valid = np.asarray(planes), np.asarray(valid)
+        planes, valid = np.asarray(planes).reshape(-1, 4, 4), np.asarray(valid)
         zp = sl.compute_shadows(scene, gbuf, light, method="zpass", precision="float64")
         zf = sl.compute_shadows(scene, gbuf, light, method="zfail", precision="float64")
     smp = view_samples(gbuf, light)

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from shadowlab.core.numerics import opaque_zero
 from shadowlab.methods import sun_disk as sd
 
 
@@ -297,7 +298,7 @@ def test_rasterizer_rounding_equals_numpy_on_exact_ties(name, projection, precis
         want &= keep[:, t]
 
     def run(d, s, nrm, zl):
-        zero = sd.data_zero(s)
+        zero = opaque_zero(s, jnp.int32)
         words = jnp.broadcast_to(jnp.asarray(g.disk_mask()), (f_count, g.words))
         he = sd.horizon_edge_list((nrm[:, 0], nrm[:, 1], nrm[:, 2]), s, zero)
         words = words & ~sd.pack_rows(sd.edge_outside_rows(*he, g, zero), g)

@@ -1,7 +1,6 @@
-"""Geometric primitives shared by the methods: shadow-volume planes and clip space."""
+"""Geometry shared by the methods: the canonical triangle setup (shadow-volume planes,
+:mod:`.triangle_setup`) and Morton keys (:mod:`.morton`)."""
 
-from .planes import (edge_plane, in_shadow_volume, plane_distance, shadow_volume_planes,
-                     to_clip_space)
+from .triangle_setup import degeneracy_tolerance, lex_less, shadow_volume_planes
 
-__all__ = ["edge_plane", "in_shadow_volume", "plane_distance", "shadow_volume_planes",
-           "to_clip_space"]
+__all__ = ["degeneracy_tolerance", "lex_less", "shadow_volume_planes"]

@@ -10,7 +10,7 @@ Stages, each a kernel (or two) with the same inputs, rounding and counters as
   (boxes, phase 1; compact storage needs the pointers of phase 0 first). ``pad_boxes``
   pads the boxes as ``cluster_hierarchy.pad_box`` does.
 - ``setup``: a thread per triangle: the four world-space shadow-volume planes (the math
-  of ``geometry.planes.shadow_volume_planes``), the post-perspective rows, the three
+  of ``geometry.triangle_setup.shadow_volume_planes``), the post-perspective rows, the three
   extra culling planes and the tolerances (``volume_planes.post_perspective_planes``).
 - ``traverse_lanes`` / ``traverse_warp``: Algorithm 1 with persistent workers pulling
   jobs from an atomic counter. A job is a triangle (pass 1, from the root) or a
@@ -34,7 +34,7 @@ Two forms of the warp-level kernels:
   results, no block synchronisation; what a CPU runs fastest).
 
 Float rounding: compiled with ``fuse_fp=False``. The setup is plain operations in the
-order of the JAX setup, which never fuses them (``brute_force.opaque_mul``); where the
+order of the JAX setup, which never fuses them (``core.numerics.opaque_mul``); where the
 JAX leaf test and box padding let XLA fuse multiply-adds on this machine, the kernels
 place the same FMAs explicitly (``fma`` flag, see ``psv.xla_contracts`` and
 docs/kernels.md).
@@ -48,6 +48,7 @@ import time
 import numpy as np
 import warp as wp
 
+from ..core.capacity import retry_on_overflow
 from .psv import fma32, xla_contracts
 from .runtime import init
 
@@ -134,7 +135,7 @@ def setup(tri: wp.array3d(dtype=wp.float32), light: wp.vec4f, inv_view: wp.mat44
           g: wp.array3d(dtype=wp.float32), tol: wp.array2d(dtype=wp.float32)):
     """A thread per triangle: world planes [T, 16], valid [T] (``world=0``: given in
     ``planes`` / ``valid``), post-perspective rows g [T, 7, 4] (edges, cap, three extra
-    culling planes) and tolerances tol [T, 7]. The operations of ``brute_force.setup``
+    culling planes) and tolerances tol [T, 7]. The operations of ``shadow_volume_planes``
     and ``volume_planes.post_perspective_planes`` in their order, one rounding each
     (``fuse_fp=False``), so the results are equal bit for bit."""
     t = wp.tid()
@@ -147,7 +148,7 @@ def setup(tri: wp.array3d(dtype=wp.float32), light: wp.vec4f, inv_view: wp.mat44
 def _world_planes(t: wp.int32, tri: wp.array3d(dtype=wp.float32), light: wp.vec4f,
                   degen: wp.float32, planes: wp.array2d(dtype=wp.float32),
                   valid: wp.array(dtype=wp.int32)):
-    """brute_force.setup for triangle t."""
+    """geometry.triangle_setup.shadow_volume_planes for triangle t."""
     v = wp.mat33f()
     for i in range(3):
         for k in range(3):
@@ -807,7 +808,7 @@ def triangle_setup(tri: np.ndarray, light_h: np.ndarray, camera, tree, qmax: flo
     """The ``setup`` kernel: world planes [T, 16], valid [T] bool, g [T, 7, 4], tol [T, 7]
     (float32), for triangles [T, 3, 3]. ``world_planes`` = (planes [T, 16], valid [T]):
     take the world planes as given and compute only the post-perspective part."""
-    from ..geometry.planes import degeneracy_tolerance
+    from ..geometry.triangle_setup import degeneracy_tolerance
 
     dev = init(device)
     n = tri.shape[0]
@@ -1103,20 +1104,25 @@ def traverse(p: dict, hier: Hierarchy, o: dict, form: str = "lanes", workers: in
     two = o["passes"] == 2
     level_l = min(max(1, o["expand_level"]), d)
     stop = level_l if two else d + 1
-    out_cap = max(1024, 4 * len(casters)) if two else 0
-    while True:
-        it, out_tri, out_node, m = run_pass(casters[order], np.zeros(len(casters), np.uint32),
-                                            0, stop, out_cap)
-        iters1 = np.zeros(len(casters), it.dtype)
-        iters1[order] = it
-        if m <= out_cap:
-            break
-        # the job list overflowed (counted, never truncated silently): start again, bigger
-        out_cap = 1 << (m - 1).bit_length()
-        common["masks"] = wp.clone(hier.masks)
-        for k in ("ta", "shadow", "tests"):
-            common[k].zero_()
-        counts.zero_()
+    runs = []
+
+    def first_pass(out_cap):
+        """Pass 1 with a job list of ``out_cap``; returns its outputs and the list length it
+        needed. A rerun (the list overflowed: counted, never truncated silently) starts
+        again from the initial state."""
+        if runs:
+            common["masks"] = wp.clone(hier.masks)
+            for k in ("ta", "shadow", "tests"):
+                common[k].zero_()
+            counts.zero_()
+        runs.append(out_cap)
+        out = run_pass(casters[order], np.zeros(len(casters), np.uint32), 0, stop, out_cap)
+        return out, out[3]
+
+    (it, out_tri, out_node, m), out_cap = retry_on_overflow(
+        first_pass, max(1024, 4 * len(casters)) if two else 0)
+    iters1 = np.zeros(len(casters), it.dtype)
+    iters1[order] = it
     tri2 = out_tri.numpy()[:m] if two else np.zeros(0, i32)
     node2 = out_node.numpy()[:m] if two else np.zeros(0, np.uint32)
     iters2 = np.zeros(0, i32)

@@ -313,6 +313,7 @@ def _jax_rasterizer(grid, projection, eps, sphere, horizon):
     import jax
     import jax.numpy as jnp
 
+    from ..core.numerics import opaque_zero
     from ..methods import sun_disk as sd
 
     g = sd.grid(grid)
@@ -320,7 +321,7 @@ def _jax_rasterizer(grid, projection, eps, sphere, horizon):
     @jax.jit
     def run(d, s, n, zl, active):
         f_count, t_count = d.shape[:2]
-        zero = sd.data_zero(s)         # one opaque zero for every product
+        zero = opaque_zero(s, jnp.int32)       # one opaque zero for every product
         words = jnp.broadcast_to(jnp.asarray(g.disk_mask()), (f_count, g.words))
         if horizon:
             he = sd.horizon_edge_list((n[:, 0], n[:, 1], n[:, 2]), s, zero)

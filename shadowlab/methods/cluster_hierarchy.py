@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..core.numerics import opaque_multiplier, opaque_zero, ordered_dot
 from ..geometry.morton import axis_bits, decode, encode, grouped_layout, round_robin_layout
 
 FANOUT_BITS = 5
@@ -169,16 +170,6 @@ def ptsv_layout(camera) -> TreeLayout:
 
 # --------------------------------------------------------------------------- samples
 
-def _opaque_mul(a, b, zero):
-    """a * b rounded once, opaque to fused multiply-add contraction: the product's bits are
-    ORed with ``zero`` (an int 0 that XLA cannot prove to be 0), so it cannot be fused
-    into a following add."""
-    p = a * b
-    it = jnp.int64 if p.dtype == jnp.float64 else jnp.int32
-    return jax.lax.bitcast_convert_type(jax.lax.bitcast_convert_type(p, it) | zero.astype(it),
-                                        p.dtype)
-
-
 def view_transform(position, view):
     """View-space points [S, 3] of world points [S, 3] (``view`` [4, 4], same dtype).
 
@@ -191,10 +182,10 @@ def view_transform(position, view):
     """
     if position.dtype == jnp.float64:
         return position @ view[:3, :3].T + view[:3, 3]
-    zero = jnp.any(jnp.isnan(view)).astype(jnp.int32)    # NaN view: garbage either way
-    x, y, z = position[:, 0], position[:, 1], position[:, 2]
-    rows = [((_opaque_mul(x, view[j, 0], zero) + _opaque_mul(y, view[j, 1], zero))
-             + _opaque_mul(z, view[j, 2], zero)) + view[j, 3] for j in range(3)]
+    mul = opaque_multiplier(opaque_zero(view, jnp.int32))    # NaN view: garbage either way
+    xyz = [position[:, 0], position[:, 1], position[:, 2]]
+    rows = [ordered_dot(xyz, [view[j, 0], view[j, 1], view[j, 2]], mul) + view[j, 3]
+            for j in range(3)]
     return jnp.stack(rows, axis=1)
 
 

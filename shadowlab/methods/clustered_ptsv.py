@@ -51,7 +51,8 @@ from ..geometry.morton import decode
 from ..scene.view import hard_light
 from ..timing import StageTimer
 from . import cluster_hierarchy as ch
-from .brute_force import setup as world_setup
+from ..core.capacity import pad
+from ..geometry.triangle_setup import shadow_volume_planes as world_setup
 from .common import (
     BIAS_MODES,
     bucket,
@@ -411,8 +412,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         tree = (ch.cluster_layout(camera, z_bits, depth_slices) if kind == "cluster"
                 else ch.ptsv_layout(camera))
         t_cap = bucket(scene.num_triangles, minimum=MIN_TRIANGLES)
-        tri = np.zeros((t_cap, 3, 3), dtype=dtype)
-        tri[: scene.num_triangles] = scene.triangles
+        tri = pad(scene.triangles, t_cap, dtype=dtype)
         planes, valid = timer.run("setup", world_setup, jnp.asarray(tri),
                                   jnp.asarray(light_h.astype(dtype)))
         with timer.stage("setup"):

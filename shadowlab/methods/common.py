@@ -1,4 +1,6 @@
-"""Helpers every method shares: precision, view samples, padding, result assembly."""
+"""Helpers every method shares: precision, view samples and their padding, the bias.
+
+``bucket`` is re-exported from ``shadowlab.core.capacity`` for older imports."""
 
 from __future__ import annotations
 
@@ -8,24 +10,10 @@ import dataclasses
 import jax
 import numpy as np
 
+from ..core.capacity import bucket, pad
 from ..raycast import GBuffer, facing_samples, shadow_epsilon
 from ..scene.mesh import Scene
 from ..scene.view import Light
-
-
-def bucket(n: int, minimum: int = 1024, steps: int = 1) -> int:
-    """A static capacity >= max(n, minimum) from a small set of sizes.
-
-    ``steps=1`` gives powers of two; ``steps=8`` gives 8 sizes per octave
-    (multiples of 2**(k-3) between 2**k and 2**(k+1)), so at most 12.5 % is padding
-    while the number of distinct compiled shapes stays logarithmic.
-    """
-    n = max(int(n), int(minimum), 1)
-    top = 1 << (n - 1).bit_length()
-    if steps <= 1 or top <= steps:
-        return top
-    grain = top // (2 * steps)
-    return -(-n // grain) * grain
 
 
 @contextlib.contextmanager
@@ -60,17 +48,11 @@ class Samples:
 
     def padded_position(self, dtype, capacity: int | None = None) -> np.ndarray:
         """[capacity, 3] positions in ``dtype``; rows past ``count`` are zeros."""
-        cap = capacity or bucket(self.count, steps=8)
-        out = np.zeros((cap, 3), dtype=dtype)
-        out[: self.count] = self.position
-        return out
+        return pad(self.position, capacity or bucket(self.count, steps=8), dtype=dtype)
 
     def padded(self, values: np.ndarray, dtype, capacity: int | None = None) -> np.ndarray:
         """``values`` [count, ...] zero-padded to [capacity, ...] in ``dtype``."""
-        cap = capacity or bucket(self.count, steps=8)
-        out = np.zeros((cap,) + values.shape[1:], dtype=dtype)
-        out[: self.count] = values
-        return out
+        return pad(values, capacity or bucket(self.count, steps=8), dtype=dtype)
 
     def scatter(self, values: np.ndarray, fill=0) -> np.ndarray:
         """An image [H, W] with ``values[:count]`` at the sample pixels, ``fill`` elsewhere."""

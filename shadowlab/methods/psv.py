@@ -23,11 +23,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..core.capacity import bucket, pad
+from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.view import hard_light
 from ..timing import StageTimer
 from . import top_tree as tt
-from .brute_force import setup as bf_setup
-from .common import BIAS_MODES, bias_terms, bucket, cap_bias, precision_mode, view_samples
+from .common import BIAS_MODES, bias_terms, cap_bias, precision_mode, view_samples
 from .registry import Option, register
 from .result import ShadowResult
 
@@ -56,13 +57,11 @@ def frustum_light_hull(camera, light_h: np.ndarray, extent: float) -> np.ndarray
 def casters(scene, light, camera, dtype, face_culling: str, frustum_culling: bool):
     """Planes [T, 4, 4] (dtype, NumPy), mask of kept triangles [T] and culling counts."""
     light_h = hard_light(light).homogeneous
-    # brute_force's own jitted setup at its padding: the same traced planes compiled in
-    # another jit differ by an ulp on most triangles (XLA's fusion and FMA choices),
-    # which decides samples whose segment to the light grazes an edge (docs/psv.md).
+    # the canonical jitted setup at brute_force's padding: the same planes, bit for bit,
+    # as brute_force (an ulp decides samples whose segment grazes an edge: docs/psv.md)
     t = bucket(scene.num_triangles, minimum=16)
-    tri = np.zeros((t, 3, 3), dtype)
-    tri[: scene.num_triangles] = scene.triangles
-    planes, valid = bf_setup(jnp.asarray(tri), jnp.asarray(light_h.astype(dtype)))
+    tri = pad(scene.triangles, t, dtype=dtype)
+    planes, valid = shadow_volume_planes(jnp.asarray(tri), jnp.asarray(light_h.astype(dtype)))
     planes = np.asarray(planes).reshape(t, 4, 4)[: scene.num_triangles]
     keep = np.asarray(valid)[: scene.num_triangles].copy()
     culled = {"degenerate": int((~keep).sum()), "face": 0, "frustum": 0}
@@ -502,7 +501,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         ``overflows``, ``switches`` (int32; zeros where not applicable); ``chunks``.
 
     Lanes run ``chunk`` node visits per kernel call; between calls the unfinished lanes
-    are compacted into the smallest of 4 sizes per octave (``common.bucket``) that
+    are compacted into the smallest of 4 sizes per octave (``core.capacity.bucket``) that
     holds them, when that is smaller than the current size.
     """
     timer = timer if timer is not None else StageTimer()
@@ -522,8 +521,8 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     with timer.stage("query_setup"):
         b = bucket(max(s_count, 1), minimum=256, steps=4)
         lane_id = np.arange(s_count)
-        cur = [_pad(points.astype(dt), b), _pad(scale.astype(dt), b),
-               _pad(key.astype(dt), b, np.inf)]
+        cur = [pad(points.astype(dt), b), pad(scale.astype(dt), b),
+               pad(key.astype(dt), b, np.inf)]
         dev = [jnp.asarray(a) for a in cur]
         del cur
         live0 = s_count if tree.root >= 0 else 0
@@ -560,19 +559,13 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
             if len(keep) == 0:
                 break
             lane_id = lane_id[keep]
-            keep_d = jnp.asarray(_pad(keep.astype(np.int32), nb))
+            keep_d = jnp.asarray(pad(keep.astype(np.int32), nb))
         # On the device: no host copy of the stack, no transfer back.
         state, dev = timer.run("query_compact", _compact_kernel(nb, k), state, dev, keep_d,
                                jnp.int32(len(keep)))
         b = nb
     out["chunks"] = n_chunks
     return out
-
-
-def _pad(a, cap, fill=0):
-    o = np.full((cap,) + a.shape[1:], fill, a.dtype)
-    o[: len(a)] = a
-    return o
 
 
 # --------------------------------------------------------------------------- methods

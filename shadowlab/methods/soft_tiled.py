@@ -54,6 +54,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..core.numerics import opaque_zero
+from ..geometry.morton import encode, round_robin_layout
 from ..raycast import shadow_epsilon
 from ..scene.view import SphereLight
 from ..structures.cones import blocker_cones, cones_in_frustum, pad_cones
@@ -77,16 +79,6 @@ DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (
 
 # ------------------------------------------------------------------ clusters (per scene)
 
-def _morton3(q: np.ndarray) -> np.ndarray:
-    """uint64 [n]: 3-D Morton codes of 10-bit integer coordinates q [n, 3]."""
-    out = np.zeros(len(q), np.uint64)
-    q = q.astype(np.uint64)
-    for bit in range(10):
-        for axis in range(3):
-            out |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
-    return out
-
-
 _CLUSTER_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
@@ -100,7 +92,8 @@ def build_clusters(scene, size: int) -> np.ndarray:
     cen = tri.mean(axis=1)
     lo, hi = cen.min(0), cen.max(0)
     q = np.floor((cen - lo) / np.maximum(hi - lo, 1e-30) * 1023.999).astype(np.int64)
-    order = np.argsort(_morton3(np.clip(q, 0, 1023)), kind="stable")
+    keys = encode(np.clip(q, 0, 1023).T, round_robin_layout((10, 10, 10)))
+    order = np.argsort(keys, kind="stable")
     n = len(order)
     c = -(-n // size)
     ids = np.full(c * size, -1, np.int64)
@@ -193,7 +186,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         shape = s.shape
         # one opaque zero (NaN eps spoils everything anyway) for the sun_disk primitives'
         # products: they round the same in every program (and as the Warp kernel)
-        zr = sd.data_zero(eps)
+        zr = opaque_zero(eps, jnp.int32)
         words0 = [jnp.full(shape, wd, jnp.uint32) for wd in disk]
         if mode == "bitmask" and horizon:
             below = sd.edge_outside_list(*sd.horizon_edge_list(nrm, s, zr), g, zr)

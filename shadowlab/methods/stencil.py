@@ -31,7 +31,8 @@ import numpy as np
 
 from ..scene.view import hard_light
 from ..timing import StageTimer
-from .brute_force import setup
+from ..core.capacity import pad
+from ..geometry.triangle_setup import shadow_volume_planes as setup
 from .common import BIAS_MODES, bucket, caster_terms, precision_mode, view_samples
 from .registry import Option, register
 from .result import ShadowResult
@@ -98,8 +99,7 @@ def _stencil(scene, gbuf, light, *, zfail, precision, shadow_eps, chunk, bias):
     cam = gbuf.camera
     with precision_mode(precision) as dtype:
         t = bucket(scene.num_triangles, minimum=chunk)
-        tri = np.zeros((t, 3, 3), dtype=dtype)
-        tri[: scene.num_triangles] = scene.triangles
+        tri = pad(scene.triangles, t, dtype=dtype)
         light_h = hard_light(light).homogeneous
         planes, valid = timer.run("setup", setup, jnp.asarray(tri),
                                   jnp.asarray(light_h.astype(dtype)))

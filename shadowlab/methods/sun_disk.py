@@ -42,7 +42,7 @@ Projections (see docs/soft_tiled.md):
 
 Rounding: every value that decides a bit (projection, edge functions, the per-row
 crossing values, orientation) is rounded the same way in any surrounding program:
-products go through :func:`opaque_product` (an integer OR with a zero XLA cannot prove to
+products go through ``core.numerics.opaque_mul`` (an integer OR with a zero XLA cannot prove to
 be zero, so no product is fused into a following add), sums are explicit ordered adds,
 divisions true divisions of same-shaped arrays, orientation flips negations. The Warp
 kernel (``kernels/sun_disk.py``) repeats these plain operations in the same order and
@@ -61,7 +61,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .brute_force import opaque_zero
+from ..core.numerics import opaque_mul, opaque_zero
 
 PAPER_CLAMP = 1e-4          # the paper's max(0.0001, sin(r) * |z|)
 PAPER_DISK_16X16 = (0x07E01FF8, 0x3FFC7FFE, 0x7FFEFFFF, 0xFFFFFFFF,
@@ -159,26 +159,6 @@ def unpack_words_np(words: np.ndarray, g: Grid) -> np.ndarray:
 
 # ------------------------------------------------------------------ rounding helpers
 
-def data_zero(x):
-    """int32 0 [] that XLA cannot prove to be 0 (1 if ``x`` holds a NaN).
-
-    The default ``zero`` of the primitives below; a caller running many of them in one
-    program computes it once (from an input whose NaN would spoil the result anyway) and
-    passes it on.
-    """
-    return opaque_zero(jnp.asarray(x)).astype(jnp.int32)
-
-
-def opaque_product(a, b, zero):
-    """a * b rounded once, opaque to FMA contraction (``brute_force.opaque_mul`` with the
-    zero cast to the product's integer width, so one int32 zero serves both precisions).
-    """
-    p = a * b
-    it = jnp.int64 if p.dtype == jnp.float64 else jnp.int32
-    return jax.lax.bitcast_convert_type(
-        jax.lax.bitcast_convert_type(p, it) | jnp.asarray(zero).astype(it), p.dtype)
-
-
 def _flip(x, neg):
     """-x where ``neg``, else x (orientation flips as negations: exact, no product)."""
     return jnp.where(neg, -x, x)
@@ -243,16 +223,16 @@ def edge_outside_list(a, b, c, g: Grid, zero=None) -> list:
 
     Args:
         a, b, c: float arrays [...] (same shape and dtype), one edge function each.
-        zero: int 0 [] from :func:`data_zero` (computed from ``a`` if None).
+        zero: int 0 [] from ``core.numerics.opaque_zero`` (computed from ``a`` if None).
     Returns:
         ``rows`` uint32 arrays [...]: bit set = cell centre outside the edge's
         half-plane (a cell centre exactly on the edge is inside).
     """
     if zero is None:
-        zero = data_zero(a)
+        zero = opaque_zero(a, jnp.int32)
 
     def mul(x, y):
-        return opaque_product(x, y, zero)
+        return opaque_mul(x, y, zero)
 
     _, ys = g.centres()
     w = 2.0 / g.cols
@@ -290,13 +270,13 @@ def polygon_keep_list(edges: list, g: Grid, active=None, zero=None) -> list:
     Args:
         edges: list of (a, b, c) arrays [...]: inside where all a x + b y + c >= 0.
         active: optional bool [...]; inactive polygons keep every bit.
-        zero: int 0 [] (:func:`data_zero`), shared by all edges (computed if None).
+        zero: int 0 [] (``core.numerics.opaque_zero``), shared by all edges (computed if None).
     Returns:
         list of ``rows`` uint32 arrays [...]: bits cleared exactly at the cell centres
         inside the polygon.
     """
     if zero is None:
-        zero = data_zero(edges[0][0])
+        zero = opaque_zero(edges[0][0], jnp.int32)
     out = None
     for a, b, c in edges:
         rows = edge_outside_list(a, b, c, g, zero)
@@ -334,16 +314,16 @@ def triangle_edges_list(px: list, py: list, zero=None):
 
     Args:
         px, py: three arrays [...] each, the vertices' disk-space coordinates.
-        zero: int 0 [] (:func:`data_zero`; computed from ``px[0]`` if None).
+        zero: int 0 [] (``core.numerics.opaque_zero``; computed from ``px[0]`` if None).
     Returns:
         edges (a list of three (a, b, c) array triples) and ok bool [...] (non-zero
         signed area; degenerate triangles must be skipped).
     """
     if zero is None:
-        zero = data_zero(px[0])
+        zero = opaque_zero(px[0], jnp.int32)
 
     def mul(x, y):
-        return opaque_product(x, y, zero)
+        return opaque_mul(x, y, zero)
 
     terms = []
     edges = []
@@ -371,13 +351,13 @@ def project_paper(d, s, zero=None):
     Args:
         d: float [..., 3] (x, y, z), +z towards the light, world units.
         s: float scalar or [...] broadcastable, the disk scale (sin or tan of the radius).
-        zero: int 0 [] (:func:`data_zero`; computed from ``d`` if None).
+        zero: int 0 [] (``core.numerics.opaque_zero``; computed from ``d`` if None).
     Returns:
         float [..., 2]: ``d.xy / max(1e-4, s * |d.z|)``, as
         :func:`project_paper_list` rounds it.
     """
     x, y = project_paper_list(d[..., 0], d[..., 1], d[..., 2], s,
-                              data_zero(d) if zero is None else zero)
+                              opaque_zero(d, jnp.int32) if zero is None else zero)
     return jnp.stack([x, y], -1)
 
 
@@ -388,9 +368,9 @@ def project_paper_list(x, y, z, s, zero=None):
     feed the edge differences). s |z| only feeds the max, so it needs no care.
     """
     if zero is None:
-        zero = data_zero(x)
+        zero = opaque_zero(x, jnp.int32)
     inv = 1.0 / jnp.maximum(PAPER_CLAMP, s * jnp.abs(z))
-    return opaque_product(x, inv, zero), opaque_product(y, inv, zero)
+    return opaque_mul(x, inv, zero), opaque_mul(y, inv, zero)
 
 
 def _mul(a, b):
@@ -425,16 +405,16 @@ def homogeneous_edges_list(d: list, s, n_recv, eps, z_light=None, zero=None):
         n_recv: tuple of three arrays [...], the receiver's unit normal (light frame).
         eps: receiver bias, world units (scalar).
         z_light: None (sun) or array [...], depth of the silhouette disk's plane.
-        zero: int 0 [] (:func:`data_zero`; computed from ``d[0][0]`` if None).
+        zero: int 0 [] (``core.numerics.opaque_zero``; computed from ``d[0][0]`` if None).
     Returns:
         edges (a list of 4 (sun) or 5 (sphere) (a, b, c) triples) and ok bool [...]
         (the fragment is not in the triangle's plane).
     """
     if zero is None:
-        zero = data_zero(d[0][0])
+        zero = opaque_zero(d[0][0], jnp.int32)
 
     def mul(x, y):
-        return opaque_product(x, y, zero)
+        return opaque_mul(x, y, zero)
 
     m = [_cross(d[0], d[1], mul), _cross(d[1], d[2], mul), _cross(d[2], d[0], mul)]
     det = _dot(d[2], m[0], mul)                            # det(d0, d1, d2)
@@ -465,7 +445,7 @@ def homogeneous_edges(d, s, n_recv, eps, z_light=None, zero=None):
     nl = tuple(n_recv[..., i] for i in range(3))
     s = jnp.broadcast_to(jnp.asarray(s, d.dtype), d.shape[:-2])
     edges, ok = homogeneous_edges_list(dl, s, nl, eps, z_light,
-                                       data_zero(d) if zero is None else zero)
+                                       opaque_zero(d, jnp.int32) if zero is None else zero)
     return jnp.stack([jnp.stack(jnp.broadcast_arrays(*e), -1) for e in edges], -2), ok
 
 
@@ -473,8 +453,8 @@ def horizon_edge_list(n_recv, s, zero=None):
     """Edge (a, b, c) of the disk part above the receiver's tangent plane:
     (s n_x, s n_y, n_z), n_recv a tuple of three arrays [...] (products opaque)."""
     if zero is None:
-        zero = data_zero(n_recv[2])
-    return (opaque_product(s, n_recv[0], zero), opaque_product(s, n_recv[1], zero), n_recv[2])
+        zero = opaque_zero(n_recv[2], jnp.int32)
+    return (opaque_mul(s, n_recv[0], zero), opaque_mul(s, n_recv[1], zero), n_recv[2])
 
 
 def horizon_edge(n_recv, s, zero=None):

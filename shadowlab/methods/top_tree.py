@@ -11,7 +11,7 @@ Layout (structure of arrays, ``C`` = shadow-volume capacity, ``N = 4 * C`` nodes
   nodes whether or not it is merged (a caster found inside another shadow volume is
   dropped, its nodes stay unused), so capacities are exact and node indices are the
   same in every build.
-- ``plane`` [N, 4]: the planes of ``geometry.planes.shadow_volume_planes`` unchanged:
+- ``plane`` [N, 4]: the planes of ``geometry.triangle_setup.shadow_volume_planes`` unchanged:
   edge planes are >= 0 inside the volume, the cap is > 0 on the light's side.
 - The *negative* child (inside the volume) of node ``i`` is ``i + 1`` for an edge node;
   the negative child of a cap is the shadow leaf. ``pos`` [N] and ``inter`` [N] are the
@@ -43,6 +43,9 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from ..core.capacity import bucket, pad
+from ..core.numerics import opaque_multiplier, ordered_dot
 
 STATUS_UNUSED, STATUS_MERGED, STATUS_DROPPED = 0, 1, 2
 ORDERS = ("random", "mesh", "distance")
@@ -249,18 +252,11 @@ def make_input(tri: np.ndarray, planes: np.ndarray, bound: np.ndarray, tri_index
 
 # --------------------------------------------------------------------------- classification
 
-def _opaque(v, zero):
-    """v unchanged, but opaque to fused multiply-add contraction (zero: int 0 at run time)."""
-    it = jnp.int64 if v.dtype == jnp.float64 else jnp.int32
-    return jax.lax.bitcast_convert_type(jax.lax.bitcast_convert_type(v, it) | zero.astype(it),
-                                        v.dtype)
-
-
 def _values(xp, mul, plane, verts):
     """Vertex values [..., 3] of verts [..., 3, 3] against plane [..., 4] (fixed order)."""
     vx, vy, vz = verts[..., 0], verts[..., 1], verts[..., 2]
     a, b, c, d = (plane[..., i:i + 1] for i in range(4))
-    return ((mul(vx, a) + mul(vy, b)) + mul(vz, c)) + d
+    return ordered_dot((vx, vy, vz), (a, b, c), mul) + d
 
 
 def _classify(xp, mul, vals, is_cap, margin, cap_extra):
@@ -359,7 +355,7 @@ def _round_impl(st, lanes, nlive, planes, verts, key, inv_dist, inv_vdist, margi
     b = lanes["rank"].shape[0]
     lane = jnp.arange(b, dtype=jnp.int32)
     live = lane < nlive
-    mul = lambda a, x: _opaque(a * x, zero)  # noqa: E731
+    mul = opaque_multiplier(zero)
     big = jnp.int32(2 ** 31 - 1)
     r = lanes["rank"]
     cur = lanes["cur"]
@@ -384,7 +380,7 @@ def _round_impl(st, lanes, nlive, planes, verts, key, inv_dist, inv_vdist, margi
     for jj in range(4):
         pa, pb, pc, pd = ((pr[:, 4 * jj + i] if ROWS else g(planes[4 * jj + i], w))
                           for i in range(4))
-        v3 = [((mul(vx[k], pa) + mul(vy[k], pb)) + mul(vz[k], pc)) + pd for k in range(3)]
+        v3 = [ordered_dot((vx[k], vy[k], vz[k]), (pa, pb, pc), mul) + pd for k in range(3)]
         hi = jnp.minimum(jnp.minimum(v3[0], v3[1]), v3[2])
         lo = jnp.maximum(jnp.maximum(v3[0], v3[1]), v3[2])
         if jj < 3:
@@ -508,9 +504,9 @@ def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> 
     while len(rank):
         with stage("build_compact"):
             live = len(rank)
-            b = _bucket(live)
-            lanes = {"rank": _pad(rank, b), "cur": _pad(cur, b), "last": _pad(last, b, -1),
-                     "steps": _pad(steps, b)}
+            b = bucket(live, minimum=192, steps=2)      # 2 sizes per octave, >= 192
+            lanes = {"rank": pad(rank, b), "cur": pad(cur, b), "last": pad(last, b, -1),
+                     "steps": pad(steps, b)}
             lanes = {k: jnp.asarray(v) for k, v in lanes.items()}
         call = (st, lanes, jnp.int32(live), *args)
         if timer is not None:
@@ -545,15 +541,3 @@ def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> 
         return TopTree(inp.planes.reshape(-1, 4).copy(), pos, inter, wedge_v, np.asarray(depth),
                        anc, level, status, inp.tri.copy(), inp.bound.copy(), int(root), count,
                        int(rounds), inp.margin)
-
-
-def _bucket(n: int) -> int:
-    """Lane capacity for ``n`` pending triangles: 2 sizes per octave, at least 256."""
-    top = 1 << (max(n, 256) - 1).bit_length()
-    return top * 3 // 4 if n <= top * 3 // 4 else top
-
-
-def _pad(a: np.ndarray, cap: int, fill=0) -> np.ndarray:
-    o = np.full(cap, fill, a.dtype)
-    o[: len(a)] = a
-    return o

@@ -2,8 +2,8 @@
 
 The node tests of ``clustered_ptsv`` and ``ptsv`` evaluate each triangle's shadow-volume
 planes on boxes in post-perspective ``(nx, ny, q = 1 / w)`` space; this module turns the
-world planes of ``brute_force.setup`` into those rows, adds the extra culling rows, and
-bounds the rounding of every evaluation. The Warp kernel setup
+world planes of ``geometry.triangle_setup.shadow_volume_planes`` into those rows, adds
+the extra culling rows, and bounds the rounding of every evaluation. The Warp kernel setup
 (``shadowlab.kernels.clustered_ptsv``) mirrors it.
 """
 
@@ -14,7 +14,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from .brute_force import opaque_mul, opaque_zero
+from ..core.numerics import opaque_multiplier, opaque_zero, ordered_dot, ordered_sum
 
 _ADJACENT = ((0, 2), (0, 1), (1, 2))     # edge planes meeting at vertex 0, 1, 2
 _MARGIN_ULPS = 64
@@ -44,8 +44,8 @@ def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: fl
       - "none".
 
     Rounding: every value is the same IEEE operations in the same order for any T
-    (the Warp setup kernel repeats them): products through ``brute_force.opaque_mul``
-    (never fused into FMAs), sums left to right (``W inv(V)`` as
+    (the Warp setup kernel repeats them): products opaque (``core.numerics``: never fused
+    into FMAs), sums left to right (``W inv(V)`` as
     ``((p0 m0j + p1 m1j) + p2 m2j) + p3 m3j``, no dot), ``1 / p00`` and ``1 / p11``
     rounded once on the host and multiplied, slack ``(s3 pmax + |d|) (qmax 4u)`` with
     ``s3 = (|n0| + |n1|) + |n2|``, ``tol = mag 64u + slack`` with
@@ -62,10 +62,7 @@ def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: fl
     """
     dtype = planes.dtype
     u = float(jnp.finfo(dtype).eps)
-    zero = opaque_zero(inv_view)
-
-    def mul(a, b):
-        return opaque_mul(a, b, zero)
+    mul = opaque_multiplier(opaque_zero(inv_view))
 
     t = planes.shape[0]
     p = [[planes[:, i, k] for k in range(4)] for i in range(4)]     # p[plane][coef]: [T]
@@ -75,18 +72,17 @@ def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: fl
     q4 = mul(qmax, jnp.asarray(4 * u, dtype))
     wv, g, inner, slack = [], [], [], []
     for i in range(4):
-        w = [((mul(p[i][0], m[0][j]) + mul(p[i][1], m[1][j])) + mul(p[i][2], m[2][j]))
-             + mul(p[i][3], m[3][j]) for j in range(4)]
+        w = [ordered_dot(p[i], [m[k][j] for k in range(4)], mul) for j in range(4)]
         wv.append(w)
         g.append([mul(w[0], r00), mul(w[1], r11), w[3], -w[2]])
-        s3 = (jnp.abs(p[i][0]) + jnp.abs(p[i][1])) + jnp.abs(p[i][2])
+        s3 = ordered_sum(jnp.abs(p[i][k]) for k in range(3))
         inner.append(mul(s3, pmax) + jnp.abs(p[i][3]))
         slack.append(mul(inner[i], q4))
     one, nil = jnp.ones(t, dtype), jnp.zeros(t, dtype)
     for a, b in _ADJACENT:
         if extra == "culling":
             n = [p[a][k] + p[b][k] for k in range(3)]
-            ok = jnp.sqrt((mul(n[0], n[0]) + mul(n[1], n[1])) + mul(n[2], n[2])) > 1e-3
+            ok = jnp.sqrt(ordered_dot(n, n, mul)) > 1e-3
             row = [g[a][k] + g[b][k] for k in range(4)]
             sl = slack[a] + slack[b]
         elif extra == "silhouette":
@@ -101,8 +97,8 @@ def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: fl
     c64 = jnp.asarray(_MARGIN_ULPS * u, dtype)
     tol = []
     for r in range(7):
-        mag = ((jnp.abs(g[r][0]) + jnp.abs(g[r][1])) + mul(jnp.abs(g[r][2]), qmax)) \
-            + jnp.abs(g[r][3])
+        mag = ordered_sum([jnp.abs(g[r][0]), jnp.abs(g[r][1]), mul(jnp.abs(g[r][2]), qmax),
+                           jnp.abs(g[r][3])])
         tol.append(mul(mag, c64) + slack[r])
     g = jnp.stack([jnp.stack(row, axis=-1) for row in g], axis=1)
     return g, jnp.stack(tol, axis=1).astype(dtype)

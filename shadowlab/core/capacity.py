@@ -1,0 +1,76 @@
+"""Static capacities: bucketed sizes, padding, and overflow retry.
+
+A jitted kernel needs static shapes, so variable-length work (samples, casters,
+frontiers, lists) is padded to a *capacity* from a small set of sizes
+(:func:`bucket`): the number of distinct compiled shapes stays logarithmic in the
+problem size. When a kernel cannot know its output size in advance, it writes at most
+``capacity`` entries and reports how many it needed; :func:`retry_on_overflow` reruns it
+with a larger bucket until nothing was dropped (the neighbour-list pattern of jax-md:
+allocate, detect overflow, reallocate).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+
+def bucket(n: int, minimum: int = 1024, steps: int = 1) -> int:
+    """A static capacity >= max(n, minimum, 1) from a small set of sizes.
+
+    ``steps=1`` gives powers of two; ``steps=k`` (a power of two) gives k sizes per
+    octave, the multiples of ``2**j / (2 k)`` in ``(2**(j-1), 2**j]``, so less than
+    ``1 / (k + 1)`` of a capacity above the minimum is padding (11 % for ``steps=8``).
+    """
+    n = max(int(n), int(minimum), 1)
+    top = 1 << (n - 1).bit_length()
+    if steps <= 1 or top <= steps:
+        return top
+    grain = top // (2 * steps)
+    return -(-n // grain) * grain
+
+
+def pad(a: np.ndarray, capacity: int, fill=0, dtype=None) -> np.ndarray:
+    """``a`` [n, ...] padded to [capacity, ...] with ``fill`` (``capacity >= n``).
+
+    Args:
+        dtype: of the result (default ``a``'s); ``a`` is cast on assignment.
+    """
+    a = np.asarray(a)
+    out = np.full((capacity,) + a.shape[1:], fill, dtype=a.dtype if dtype is None else dtype)
+    out[: len(a)] = a
+    return out
+
+
+def grow_to_bucket(need: int, capacity: int) -> int:
+    """The default growth of :func:`retry_on_overflow`: the power of two >= ``need``."""
+    return bucket(need, minimum=1)
+
+
+def retry_on_overflow(step: Callable, capacity, grow: Callable = grow_to_bucket):
+    """Run ``step`` with static capacities, growing them until no capacity overflowed.
+
+    Args:
+        step: ``step(capacity) -> (result, need)``. It runs the work with the given
+            static capacity (a jitted kernel compiled for it) and reports, per capacity,
+            the number of entries the work needed (an exact count, or a lower bound if
+            ``grow`` over-allocates to make up for it). ``need > capacity`` means the
+            overflowing entries were dropped and ``result`` must not be used.
+        capacity: an int, or a tuple of ints for several capacities.
+        grow: ``grow(need, capacity) -> new capacity`` (> capacity) for an overflowing
+            capacity; one function, or a tuple of them, one per capacity.
+
+    Returns:
+        (result, capacity): the result of the first run in which every ``need <=
+        capacity``, and the capacities it ran with.
+    """
+    single = not isinstance(capacity, tuple)
+    caps = (capacity,) if single else tuple(capacity)
+    grows = grow if isinstance(grow, tuple) else (grow,) * len(caps)
+    while True:
+        result, need = step(caps[0] if single else caps)
+        needs = (need,) if single else tuple(need)
+        if all(int(n) <= c for n, c in zip(needs, caps)):
+            return result, (caps[0] if single else caps)
+        caps = tuple(g(int(n), c) if int(n) > c else c for g, n, c in zip(grows, needs, caps))

@@ -1,0 +1,94 @@
+"""The numerics policy: products rounded once, sums in a fixed order.
+
+XLA may fuse ``a * b + c`` into a fused multiply-add, and does so or not depending on
+the surrounding program (vector body or remainder, array size, fusion decisions). A
+value that decides a bit of the output must therefore not depend on the program it is
+traced in. The policy every exact method follows:
+
+- **Opaque products.** :func:`opaque_mul` rounds ``a * b`` once and passes the result
+  through an integer bit-cast ORed with a zero XLA cannot prove to be zero
+  (:func:`opaque_zero`). No compiler can fuse the product into a following add or
+  reassociate across it; the cost is one integer OR per product.
+- **Ordered sums.** Sums are explicit left-to-right adds (:func:`ordered_sum`,
+  :func:`ordered_dot`), never reductions whose order the compiler picks.
+
+The Warp kernels repeat the same plain operations in the same order, which is how they
+equal the JAX methods bit for bit.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def _int_like(dtype):
+    """The integer dtype with the width of float ``dtype`` (int64 for float64, else int32)."""
+    return jnp.int64 if dtype == jnp.float64 else jnp.int32
+
+
+def opaque_zero(x, dtype=None):
+    """An integer 0 [] that XLA cannot prove to be 0: 1 if ``x`` holds a NaN, else 0.
+
+    Callers pick an ``x`` whose NaN would make every meaningful output NaN or invalid
+    anyway (e.g. the light of a triangle setup), and compute the zero once per program.
+
+    Args:
+        x: float array [...] (any shape).
+        dtype: integer dtype of the result; default the integer of ``x``'s width
+            (int64 for float64, else int32). One int32 zero serves both precisions:
+            :func:`opaque` widens it to the value's width.
+    """
+    x = jnp.asarray(x)
+    return jnp.any(jnp.isnan(x)).astype(_int_like(x.dtype) if dtype is None else dtype)
+
+
+def opaque(v, zero):
+    """``v`` [...] unchanged, but opaque to fused multiply-add contraction.
+
+    Its bits are ORed with ``zero`` (from :func:`opaque_zero`, any integer dtype; cast to
+    ``v``'s width), so XLA cannot fuse the value into the operation that consumes it.
+    """
+    it = _int_like(v.dtype)
+    return jax.lax.bitcast_convert_type(
+        jax.lax.bitcast_convert_type(v, it) | jnp.asarray(zero).astype(it), v.dtype)
+
+
+def opaque_mul(a, b, zero):
+    """``a * b`` [...] rounded once and opaque to fused multiply-add contraction."""
+    return opaque(a * b, zero)
+
+
+def opaque_multiplier(zero):
+    """The function ``mul(a, b) = opaque_mul(a, b, zero)`` (for the helpers below)."""
+    def mul(a, b):
+        return opaque_mul(a, b, zero)
+    return mul
+
+
+def ordered_sum(terms):
+    """``((t0 + t1) + t2) + ...``: the terms [...] added strictly left to right."""
+    it = iter(terms)
+    total = next(it)
+    for t in it:
+        total = total + t
+    return total
+
+
+def ordered_dot(a, b, mul):
+    """``((a0 b0 + a1 b1) + a2 b2) + ...`` with each product ``mul(a_i, b_i)``.
+
+    Args:
+        a, b: equal-length sequences of arrays [...] (e.g. the 3 columns of a vector).
+        mul: the product, e.g. from :func:`opaque_multiplier` (or ``numpy.multiply`` in
+            a NumPy reference, which never fuses).
+    """
+    return ordered_sum(mul(x, y) for x, y in zip(a, b))
+
+
+def cross3(a, b, mul):
+    """Cross product of 3-vectors given as 3 columns [...]: ``a_i b_j - a_j b_i``, each
+    product ``mul``-rounded."""
+    return [mul(a[1], b[2]) - mul(a[2], b[1]),
+            mul(a[2], b[0]) - mul(a[0], b[2]),
+            mul(a[0], b[1]) - mul(a[1], b[0])]

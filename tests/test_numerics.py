@@ -1,0 +1,89 @@
+"""The numerics policy (``core.numerics``): opaque products keep IEEE product bits and
+are never fused into a following add; ordered sums add strictly left to right."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from shadowlab.core.numerics import (cross3, opaque, opaque_mul, opaque_multiplier,
+                                     opaque_zero, ordered_dot, ordered_sum)
+from shadowlab.methods.common import precision_mode
+
+
+def _operands(dt, n=4096, seed=0):
+    rng = np.random.default_rng(seed)
+    a, b = (rng.uniform(-4, 4, n) * 10.0 ** rng.integers(-3, 4, n) for _ in range(2))
+    c = -(a * b) * (1 + rng.uniform(-1e-6, 1e-6, n))     # near-cancellation: FMA shows
+    return a.astype(dt), b.astype(dt), c.astype(dt)
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_opaque_zero_is_zero_unless_nan(precision):
+    with precision_mode(precision) as dt:
+        wide = jnp.int64 if dt == np.float64 else jnp.int32
+        x = jnp.asarray(np.ones(5, dt))
+        z = opaque_zero(x)
+        assert z.dtype == wide and int(z) == 0
+        assert opaque_zero(x, jnp.int32).dtype == jnp.int32
+        assert int(opaque_zero(x.at[3].set(jnp.nan))) == 1
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_opaque_mul_is_the_rounded_product(precision):
+    with precision_mode(precision) as dt:
+        a, b, _ = _operands(dt)
+        for zero in (opaque_zero(jnp.asarray(a)), opaque_zero(jnp.asarray(a), jnp.int32)):
+            got = np.asarray(jax.jit(opaque_mul)(jnp.asarray(a), jnp.asarray(b), zero))
+            assert got.dtype == dt
+            np.testing.assert_array_equal(got, a * b)         # NumPy: one rounding
+        v = jnp.asarray(a)
+        np.testing.assert_array_equal(np.asarray(opaque(v, opaque_zero(v))), a)
+
+
+def test_opaque_product_is_not_fused_into_the_add():
+    """mul(a, b) + c equals two roundings (NumPy), on inputs where a fused multiply-add
+    (one rounding) gives other bits for most elements."""
+    a, b, c = _operands(np.float32)
+    fma = ((a.astype(np.float64) * b) + c).astype(np.float32)   # exact product, one rounding
+    two = a * b + c
+    assert np.mean(fma != two) > 0.5                           # the test can tell them apart
+
+    @jax.jit
+    def muladd(a, b, c):
+        return opaque_mul(a, b, opaque_zero(c)) + c
+
+    got = np.asarray(muladd(jnp.asarray(a), jnp.asarray(b), jnp.asarray(c)))
+    np.testing.assert_array_equal(got, two)
+
+
+def test_ordered_sum_adds_left_to_right():
+    f = np.float32
+    terms = [f(1e8), f(1.0), f(-1e8), f(0.25)]
+    want = functools.reduce(lambda s, t: f(s + t), terms)
+    assert want != sum(sorted(terms))                           # order matters here
+    got = jax.jit(lambda *t: ordered_sum(t))(*(jnp.asarray(t) for t in terms))
+    assert np.asarray(got) == want
+    assert ordered_sum([5]) == 5
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_ordered_dot_and_cross3_match_numpy_op_by_op(precision):
+    with precision_mode(precision) as dt:
+        rng = np.random.default_rng(3)
+        a, b = (list(rng.normal(size=(3, 500)).astype(dt)) for _ in range(2))
+        want_dot = (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+        want_cross = np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                               a[0] * b[1] - a[1] * b[0]], 1)
+
+        @jax.jit
+        def run(a, b):
+            mul = opaque_multiplier(opaque_zero(a[0]))
+            return ordered_dot(a, b, mul), jnp.stack(cross3(a, b, mul), 1)
+
+        d, c = run([jnp.asarray(x) for x in a], [jnp.asarray(x) for x in b])
+        np.testing.assert_array_equal(np.asarray(d), want_dot)
+        np.testing.assert_array_equal(np.asarray(c), want_cross)
+        np.testing.assert_array_equal(ordered_dot(a, b, np.multiply), want_dot)
