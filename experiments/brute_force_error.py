@@ -11,19 +11,20 @@
 #
 # For each scene: the reference lit mask, the error map of `brute_force` (red: lit
 # but should be shadowed, blue: shadowed but should be lit) and the run time of both,
-# warm, median of repeats; the compile time of `brute_force` is kept apart.
+# warm, median of repeats; the compile time of `brute_force` is kept apart
+# (`shadowlab.harness.evaluate`: the reference, metric and timing protocol of `run`).
 # `shadowlab figures --only brute_force_error` regenerates `figures/brute_force_error.*`.
 
 # %%
 from __future__ import annotations
 
 import statistics
-import time
 
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.analysis.metrics import compare_hard, error_map
+from shadowlab.analysis.metrics import error_map
+from shadowlab.harness import References, evaluate
 from shadowlab.scene.procedural import default_view
 
 
@@ -41,28 +42,23 @@ def run(cfg: dict) -> dict:
         view = default_view(name, scene, **params)
         camera = view.camera.replace(resolution=res)
         gbuf = sl.render_gbuffer(scene, camera)
-        ref_times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            truth = sl.reference_shadows(scene, gbuf, view.light)
-            ref_times.append(time.perf_counter() - t0)
-        opts = {"precision": cfg.get("precision", "float32")}
-        cold = sl.compute_shadows(scene, gbuf, view.light, method="brute_force", **opts)
-        runs = [sl.compute_shadows(scene, gbuf, view.light, method="brute_force", **opts)
-                for _ in range(repeats)]
-        lit = runs[-1].lit
-        stats = compare_hard(lit, truth, gbuf.valid)
+        refs = References(scene, gbuf, view.light)
+        truth = refs.hard(repeats)
+        ev = evaluate(scene, gbuf, view.light, "brute_force",
+                      {"precision": cfg.get("precision", "float32")}, reference=refs,
+                      repeats=repeats)
+        lit = ev.result.lit
+        stats = ev.error
         out["reference"].append(truth)
         out["valid"].append(gbuf.valid)
         out["error"].append(error_map(lit, truth, gbuf.valid))
         out["mismatches"].append(stats["mismatches"])
         out["valid_pixels"].append(stats["valid_pixels"])
         out["triangles"].append(scene.num_triangles)
-        out["reference_seconds"].append(statistics.median(ref_times))
-        out["method_seconds"].append(statistics.median(r.timings["total"] for r in runs))
-        out["compile_seconds"].append(sum(v for k, v in cold.timings.items()
-                                          if k.endswith("_compile")))
-        out["tests"].append(runs[-1].counters["tests"])
+        out["reference_seconds"].append(statistics.median(refs.hard_seconds))
+        out["method_seconds"].append(ev.seconds)
+        out["compile_seconds"].append(ev.compile_seconds)
+        out["tests"].append(ev.result.counters["tests"])
     arrays = {k: np.asarray(v) for k, v in out.items()}
     arrays["scenes"] = np.asarray(names)
     return arrays

@@ -9,10 +9,12 @@ The public API (see README.md)::
     gbuf = sl.render_gbuffer(scene, camera)
     truth = sl.reference_shadows(scene, gbuf, light)
     res = sl.compute_shadows(scene, gbuf, light, method="brute_force")
+    ev = sl.evaluate(scene, gbuf, light, "brute_force")   # + reference, metric, warm times
 """
 
-from . import methods, scene
+from . import harness, methods, scene
 from .counters import COUNTERS
+from .harness import evaluate
 from .methods import MethodError, ShadowResult, compute_shadows
 from .raycast import GBuffer, reference_shadows, render_gbuffer, soft_reference
 from .scene import (Animation, Camera, DirectionalLight, PointLight, Scene, SceneError,
@@ -23,6 +25,6 @@ __version__ = "0.1.0"
 __all__ = [
     "Animation", "COUNTERS", "Camera", "DirectionalLight", "GBuffer", "MethodError",
     "PointLight", "Scene", "SceneError", "ShadowResult", "SphereLight", "View",
-    "compute_shadows", "load_scene", "methods", "reference_shadows", "render_gbuffer",
-    "scene", "soft_reference", "__version__",
+    "compute_shadows", "evaluate", "harness", "load_scene", "methods", "reference_shadows",
+    "render_gbuffer", "scene", "soft_reference", "__version__",
 ]

@@ -1,15 +1,15 @@
 """``shadowlab bench``: run time against error, measured against Embree in the same run.
 
 For each case (a scene, a view, a set of methods) it renders the G-buffer once, times
-the Embree shadow-ray pass ``repeats`` times, then runs each method once cold (its
-compile time is reported apart) and ``repeats`` times warm, and reports median
-per-stage run times, the ratio of the method's median total to Embree's median, and
-the method's error against the reference. Results are saved as JSON for plots.
+the Embree shadow-ray pass ``repeats`` times, then evaluates each method with
+``harness.evaluate`` (one warm-up call whose compile time is reported apart, then
+``repeats`` warm calls), and reports median per-stage run times, the ratio of the
+method's median total to Embree's median, and the method's error against the
+reference its kind calls for. Results are saved as JSON for plots.
 """
 
 from __future__ import annotations
 
-import statistics
 import time
 import tomllib
 from importlib import resources
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from . import io
-from .analysis import compare_hard, compare_soft
-from .methods import compute_shadows, get
-from .raycast import reference_shadows, render_gbuffer, soft_reference
-from .scene.view import SphereLight
+from .analysis import compare_soft
+from .harness.evaluate import References, evaluate
+from .methods import MethodKind, get, light_problem
+from .raycast import render_gbuffer, soft_reference
 
 # Rays per pixel of the Embree soft reference's run-time-vs-error curve.
 SOFT_CURVE_RAYS = (4, 16, 64)
@@ -60,70 +60,49 @@ def default_cases(size: str = "full") -> list[dict]:
     return table[size]["case"]
 
 
-def _median_stage_times(runs: list[dict]) -> dict:
-    keys = [k for k in runs[0] if not k.endswith("_compile")]
-    return {k: statistics.median(r[k] for r in runs) for k in keys}
-
-
 def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
     """Benchmark the first frame of ``config`` (a RunConfig); returns a JSON-able dict."""
-    from tqdm import tqdm
-
     scene = config.build_scene()
     view = config.views(scene)[0]
     gbuf = render_gbuffer(scene, view.camera)
     eps = config.reference.shadow_eps
-    ref_times = []
-    truth = None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        truth = reference_shadows(scene, gbuf, view.light, shadow_eps=eps)
-        ref_times.append(time.perf_counter() - t0)
-    ref_median = statistics.median(ref_times)
+    refs = References(scene, gbuf, view.light, shadow_eps=eps,
+                      soft_rays=config.reference.soft_rays, seed=config.reference.seed,
+                      progress=progress)
+    truth = refs.hard(repeats)
+    ref_times = refs.hard_seconds
+    ref_median = float(np.median(ref_times))
     out = {"scene": scene.name, "triangles": scene.num_triangles,
            "resolution": list(view.camera.resolution), "valid_pixels": int(gbuf.valid.sum()),
            "reference": {"median_seconds": ref_median, "runs": ref_times,
                          "rays_per_second": int(truth.size and (gbuf.valid.sum() / ref_median))},
            "methods": {}}
-    soft_names = [n for n in config.methods.names if get(n).soft]
-    soft_truth = None
-    if soft_names and isinstance(view.light, SphereLight):
-        rays = config.reference.soft_rays
-        t0 = time.perf_counter()
-        soft_truth = soft_reference(scene, gbuf, view.light, rays_per_pixel=rays,
-                                    seed=config.reference.seed, shadow_eps=eps, progress=progress)
-        out["soft_reference"] = {"rays": rays, "seconds": time.perf_counter() - t0,
+    runnable = {n: light_problem(n, view.light) for n in config.methods.names}
+    if any(get(n).soft and r is None for n, r in runnable.items()):
+        soft_truth = refs.soft()
+        out["soft_reference"] = {"rays": refs.soft_rays, "seconds": refs.soft_seconds[0],
                                  "curve": _soft_curve(scene, gbuf, view.light, soft_truth, eps,
                                                       progress)}
     for name in config.methods.names:
-        if get(name).soft and soft_truth is None:
-            out["methods"][name] = {"skipped": "soft method without a sphere or sun light"}
+        if runnable[name] is not None:
+            out["methods"][name] = {"skipped": runnable[name]}
             continue
-        opts = dict(config.methods.options.get(name, {}))
-        opts.setdefault("shadow_eps", eps)
-        cold = compute_shadows(scene, gbuf, view.light, method=name, **opts)
-        compile_s = {k: v for k, v in cold.timings.items() if k.endswith("_compile")}
-        runs = []
-        result = cold
-        for _ in tqdm(range(repeats), desc=f"{name}", leave=False, disable=not progress):
-            result = compute_shadows(scene, gbuf, view.light, method=name, **opts)
-            runs.append(result.timings)
-        stages = _median_stage_times(runs)
-        counters = result.scalar_counters()
+        ev = evaluate(scene, gbuf, view.light, name, config.methods.options.get(name, {}),
+                      reference=refs, repeats=repeats)
+        stages = {k: v for k, v in ev.timings.items() if not k.endswith("_compile")}
+        compile_s = {k: v for k, v in ev.timings.items() if k.endswith("_compile")}
+        counters = ev.result.scalar_counters()
         row = {"stages": stages, "compile": compile_s,
-               "compile_seconds": sum(compile_s.values()),
-               "median_seconds": stages["total"],
-               "ratio_to_reference": stages["total"] / ref_median if ref_median > 0 else None,
-               "counters": counters}
-        if get(name).soft:
-            row["error"] = compare_soft(result.lit, soft_truth, gbuf.valid)
+               "compile_seconds": ev.compile_seconds,
+               "median_seconds": ev.seconds,
+               "ratio_to_reference": ev.seconds / ref_median if ref_median > 0 else None,
+               "counters": counters, "error": ev.error}
+        if ev.kind is MethodKind.SOFT:
             row["embree_seconds_at_equal_error"] = embree_seconds_at_error(
                 out["soft_reference"]["curve"], row["error"]["mae"])
             row.pop("ratio_to_reference")
-        else:
-            row["error"] = compare_hard(result.lit, truth, gbuf.valid)
-        if "tests" in counters and stages["total"] > 0:
-            row["tests_per_second"] = counters["tests"] / stages["total"]
+        if "tests" in counters and ev.seconds > 0:
+            row["tests_per_second"] = counters["tests"] / ev.seconds
         out["methods"][name] = row
     return out
 

@@ -2,8 +2,11 @@
 
 For every frame of the configured view or animation it renders the G-buffer with
 Embree, computes the exact reference (timed: it is the bar every method is measured
-against), runs every configured method, and compares each with the reference on
-valid pixels. Outputs (all written atomically, and only once the run has finished):
+against), and evaluates every configured method with ``harness.evaluate``: the
+reference and metric its kind calls for, and the harness's timing protocol (a warm-up
+call with compile time kept apart, then the median of warm calls; with several frames
+the first frame warms up and each frame is one warm call). Outputs (all written
+atomically, and only once the run has finished):
 
 - ``metrics.json``: the resolved config, provenance, per-frame and summary metrics;
 - ``shadows.npz``: reference and method masks [F, H, W], valid masks, counter maps;
@@ -13,20 +16,16 @@ valid pixels. Outputs (all written atomically, and only once the run has finishe
 from __future__ import annotations
 
 import dataclasses
-import time
 from pathlib import Path
 
 import numpy as np
 
 from . import io
-from .analysis import compare_hard, compare_soft
-from .analysis.boundary import unexplained_mismatches
-from .methods import MethodError, compute_shadows, get
-from .raycast import reference_shadows, render_gbuffer, soft_reference
-from .scene.view import SphereLight
+from .harness.evaluate import DEFAULT_REPEATS, EXPLAIN_LIMIT, References, evaluate
+from .methods import MethodError, light_problem
+from .raycast import render_gbuffer
 
-
-EXPLAIN_LIMIT = 200   # mismatched pixels checked for lying on a shadow boundary
+__all__ = ["EXPLAIN_LIMIT", "RunOutput", "format_table", "run", "runnable_methods"]
 
 
 @dataclasses.dataclass
@@ -70,10 +69,8 @@ def runnable_methods(config, views) -> tuple[list[str], dict[str, str]]:
     light = views[0].light
     methods, skipped = [], {}
     for name in config.methods.names:
-        info = get(name)
-        if info.soft and not isinstance(light, SphereLight):
-            reason = (f"computes soft shadows and needs a sphere or sun light; the light is a "
-                      f"{type(light).__name__} (set light.type to sphere or sun)")
+        reason = light_problem(name, light)
+        if reason is not None:
             if not config.methods.all:
                 raise MethodError(f"method {name!r} {reason}")
             skipped[name] = reason
@@ -83,56 +80,54 @@ def runnable_methods(config, views) -> tuple[list[str], dict[str, str]]:
 
 
 def run(config, out_dir: str | Path | None = None, progress: bool = True,
-        write: bool = True) -> RunOutput:
+        write: bool = True, repeats: int | None = None, warmup: int = 1) -> RunOutput:
     """Run ``config`` (a ``shadowlab.config.RunConfig``); write outputs to ``out_dir``
-    (default ``config.output.dir``) unless ``write`` is False."""
+    (default ``config.output.dir``) unless ``write`` is False.
+
+    Timing: before its first frame each method is called ``warmup`` times (compile time
+    kept apart), then ``repeats`` warm calls per frame give the frame's median times
+    (default: ``harness.DEFAULT_REPEATS`` for one frame, 1 for an animation, whose
+    summary is the median over frames).
+    """
     from tqdm import tqdm
 
     scene = config.build_scene()
     views = config.views(scene)
     methods, skipped = runnable_methods(config, views)
+    if repeats is None:
+        repeats = DEFAULT_REPEATS if len(views) == 1 else 1
     ref_cfg = config.reference
     frames: list[dict] = []
     arrays: dict[str, list] = {"valid": [], "reference": []}
-    soft_truth_cache = {}
+    soft_truth = {}
     bar = tqdm(views, desc=f"{scene.name}", unit="frame", disable=not progress)
     for index, view in enumerate(bar):
         gbuf = render_gbuffer(scene, view.camera)
-        t0 = time.perf_counter()
-        truth = reference_shadows(scene, gbuf, view.light, shadow_eps=ref_cfg.shadow_eps)
-        ref_seconds = time.perf_counter() - t0
+        refs = References(scene, gbuf, view.light, shadow_eps=ref_cfg.shadow_eps,
+                          soft_rays=ref_cfg.soft_rays, seed=ref_cfg.seed)
+        truth = refs.hard()
         arrays["valid"].append(gbuf.valid)
         arrays["reference"].append(truth)
         frame = {"frame": index, "valid_pixels": int(gbuf.valid.sum()),
-                 "reference_lit": int(truth.sum()), "reference_seconds": ref_seconds,
+                 "reference_lit": int(truth.sum()), "reference_seconds": refs.hard_seconds[0],
                  "methods": {}}
         for name in methods:
             bar.set_postfix_str(name)
-            opts = dict(config.methods.options.get(name, {}))
-            opts.setdefault("shadow_eps", ref_cfg.shadow_eps)
-            res = compute_shadows(scene, gbuf, view.light, method=name, **opts)
-            if get(name).soft:
-                if index not in soft_truth_cache:
-                    soft_truth_cache[index] = soft_reference(
-                        scene, gbuf, view.light, rays_per_pixel=ref_cfg.soft_rays,
-                        seed=ref_cfg.seed, shadow_eps=ref_cfg.shadow_eps)
-                error = compare_soft(res.lit, soft_truth_cache[index], gbuf.valid)
-            else:
-                error = compare_hard(res.lit, truth, gbuf.valid)
-                # Mismatches on no shadow boundary (float64 check; skipped when many).
-                error["unexplained"] = (
-                    len(unexplained_mismatches(scene, gbuf, view.light, res.lit, truth,
-                                               ref_cfg.shadow_eps))
-                    if error["mismatches"] <= EXPLAIN_LIMIT else None)
-            frame["methods"][name] = {"error": error, "counters": res.scalar_counters(),
-                                      "timings": res.timings, "options": res.options}
+            ev = evaluate(scene, gbuf, view.light, name, config.methods.options.get(name, {}),
+                          reference=refs, repeats=repeats, warmup=warmup if index == 0 else 0)
+            res = ev.result
+            frame["methods"][name] = {"error": ev.error, "counters": res.scalar_counters(),
+                                      "timings": ev.timings, "cold_timings": ev.cold,
+                                      "warm_runs": len(ev.runs), "options": res.options}
             arrays.setdefault(f"{name}/lit", []).append(res.lit)
             for key, value in res.counter_maps().items():
                 arrays.setdefault(f"{name}/{key}", []).append(value)
+        if refs.has_soft:
+            soft_truth[index] = refs.soft()
         frames.append(frame)
     bar.close()
     stacked = {k: np.stack(v) for k, v in arrays.items()}
-    for index, truth in soft_truth_cache.items():
+    for index, truth in soft_truth.items():
         stacked.setdefault("soft_reference", np.zeros(stacked["valid"].shape))[index] = truth
     metrics = {
         "config": config.to_dict(),
@@ -141,6 +136,8 @@ def run(config, out_dir: str | Path | None = None, progress: bool = True,
         "frames": frames,
         "summary": {name: _method_summary(frames, name) for name in methods},
         "skipped": skipped,
+        "timing": {"warmup": warmup, "repeats": repeats,
+                   "protocol": "median of warm calls per frame; compile kept apart"},
     }
     files = []
     if write:
@@ -181,7 +178,7 @@ def _figures(arrays: dict, methods: list[str], folder: Path) -> list[Path]:
 def format_table(metrics: dict) -> str:
     """The summary as a plain-text table."""
     head = (f"{'method':<16} {'frames':>6} {'mismatches':>10} {'unexpl.':>7} {'max mism.%':>10} "
-            f"{'median s':>9} {'compile s':>9} {'x Embree':>9} {'tests':>14}")
+            f"{'warm s':>9} {'compile s':>9} {'x Embree':>9} {'tests':>14}")
     lines = [head, "-" * len(head)]
     ref = np.median([f["reference_seconds"] for f in metrics["frames"]])
     lines.append(f"{'reference':<16} {len(metrics['frames']):>6} {0:>10} {0:>7} {0.0:>10.4f} "
@@ -198,7 +195,10 @@ def format_table(metrics: dict) -> str:
                      f"{s.get('tests', '-'):>14}")
     for name, reason in metrics.get("skipped", {}).items():
         lines.append(f"{name:<16} skipped: {reason}")
+    timing = metrics.get("timing")
+    if timing:
+        lines.append(f"warm s: median of {timing['repeats']} warm call(s) per frame after "
+                     f"{timing['warmup']} warm-up call(s); compile s: kept apart")
     return "\n".join(lines)
 
 
-__all__ = ["RunOutput", "format_table", "run"]

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..raycast import GBuffer, shadow_epsilon
+from ..raycast import DEFAULT_SHADOW_EPS, GBuffer, shadow_epsilon
 from ..scene.mesh import Scene
 from ..scene.view import Light, hard_light
 
@@ -37,7 +37,7 @@ def edge_tolerance(scene: Scene, light: Light) -> float:
 
 
 def boundary_distance(scene: Scene, gbuf: GBuffer, light: Light, pixels: np.ndarray,
-                      shadow_eps: float = 1e-5, chunk: int = 65536,
+                      shadow_eps: float = DEFAULT_SHADOW_EPS, chunk: int = 65536,
                       reach: float | None = None) -> dict:
     """For pixels [K, 2] (row, col): the float64 margins of their segment to the light.
 
@@ -97,7 +97,7 @@ def boundary_distance(scene: Scene, gbuf: GBuffer, light: Light, pixels: np.ndar
 
 
 def unexplained_mismatches(scene: Scene, gbuf: GBuffer, light: Light, lit: np.ndarray,
-                           truth: np.ndarray, shadow_eps: float = 1e-5) -> np.ndarray:
+                           truth: np.ndarray, shadow_eps: float = DEFAULT_SHADOW_EPS) -> np.ndarray:
     """int [K, 2]: mismatched valid pixels that lie on no shadow boundary (within
     ``edge_tolerance(scene, light)`` world units of a caster's edge or
     ``CUT_TOLERANCE`` of the cut)."""
@@ -112,7 +112,7 @@ def unexplained_mismatches(scene: Scene, gbuf: GBuffer, light: Light, lit: np.nd
 
 def unexplained_count(scene: Scene, gbuf: GBuffer, light: Light, lit: np.ndarray,
                       truth: np.ndarray, mask: np.ndarray | None = None,
-                      shadow_eps: float = 1e-5, limit: int = 200) -> int:
+                      shadow_eps: float = DEFAULT_SHADOW_EPS, limit: int = 200) -> int:
     """How many mismatched pixels (valid, and inside ``mask`` bool [H, W] if given) lie
     on no shadow boundary. Above ``limit`` mismatches none is examined and all count as
     unexplained (an experiment's check then fails, as it should for so many)."""

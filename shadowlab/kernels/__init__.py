@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import importlib.util
 
-#: methods with a kernel version (``compute_shadows(method=...)``)
-METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid", "clustered_ptsv")
+from ..methods import registry
+
 #: the PSV methods (``kernels/psv.py``)
 PSV_METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
 
@@ -48,18 +48,46 @@ def _require():
                           "(or pip install warp-lang)")
 
 
+def _psv_kernel(method: str):
+    def run(scene, gbuf, light, **options):
+        """``kernels.psv.run`` for this method (Warp is imported here, on first use)."""
+        _require()
+        from . import psv
+        return psv.run(method, scene, gbuf, light, **options)
+    return run
+
+
+def _clustered_ptsv_kernel(scene, gbuf, light, **options):
+    """``kernels.clustered_ptsv.run`` (Warp is imported here, on first use)."""
+    _require()
+    from . import clustered_ptsv
+    return clustered_ptsv.run(scene, gbuf, light, **options)
+
+
+# The kernel versions hang off the method registry's entries.
+for _name in PSV_METHODS:
+    registry.register_kernel(_name, _psv_kernel(_name))
+registry.register_kernel("clustered_ptsv", _clustered_ptsv_kernel)
+
+
+def methods() -> list[str]:
+    """The registered methods that have a kernel version."""
+    return [n for n in registry.names() if registry.get(n).kernel is not None]
+
+
+def __getattr__(name):
+    if name == "METHODS":        # the kernel-backed methods, read from the registry
+        return tuple(methods())
+    raise AttributeError(name)
+
+
 def compute_shadows(scene, gbuf, light, method: str = "d_psv", **options):
     """Run a method with the kernels; same options and counters as
     ``shadowlab.compute_shadows`` (see ``kernels.psv.run``, ``kernels.clustered_ptsv.run``;
-    the latter also takes ``form="lanes"`` (faithful) or ``"warp"`` (fast))."""
+    the latter also takes ``form="lanes"`` (faithful) or ``"warp"`` (fast)). The kernel
+    is looked up in the method registry (``MethodInfo.kernel``)."""
     _require()
-    if method not in METHODS:
-        raise ValueError(f"no kernel version of {method!r}; available: {', '.join(METHODS)}")
-    if method == "clustered_ptsv":
-        from . import clustered_ptsv
-        return clustered_ptsv.run(scene, gbuf, light, **options)
-    from . import psv
-    return psv.run(method, scene, gbuf, light, **options)
+    return registry.run_kernel(scene, gbuf, light, method, **options)
 
 
 def psv_build(inp, wedge: str = "conservative", schedule: str = "threads", **kw):
@@ -83,5 +111,5 @@ def sun_disk_visibility(*args, **kw):
     return sun_disk.visibility(*args, **kw)
 
 
-__all__ = ["METHODS", "PSV_METHODS", "available", "compute_shadows", "psv_build", "psv_query",
-           "sun_disk_visibility"]
+__all__ = ["METHODS", "PSV_METHODS", "available", "compute_shadows", "methods", "psv_build",
+           "psv_query", "sun_disk_visibility"]

@@ -56,7 +56,10 @@ def _test_kernel(chunk: int):
 
 
 @register("brute_force", doc="every view sample against every triangle's shadow volume "
-          "(the exact oracle)", paper="none (the exact oracle; docs/conventions.md)",
+          "(the exact oracle)", paper="none (the exact oracle; docs/conventions.md)", kind="exact",
+          counters=("samples", "casters", "culled_triangles", "tests", "tests_per_pixel",
+                    "shadowed", "lit"),
+          stages=("samples", "setup", "bias", "test"),
           options={"chunk": Option(16, "triangles per unrolled loop step", allowed=(4, 8, 16, 32)),
                    "bias": Option("receiver", "self-shadowing bias: 'receiver' = eps above the "
                                   "receiver's tangent plane (as the reference), 'cap' = eps "
@@ -98,6 +101,4 @@ def brute_force(scene, gbuf, light, *, precision, shadow_eps, chunk, bias):
         "lit": int(lit.sum()),
     }
     timings = dict(timer.times, total=timer.total)
-    return ShadowResult(lit, counters, timings, "brute_force",
-                        {"precision": precision, "shadow_eps": shadow_eps, "chunk": chunk,
-                         "bias": bias})
+    return ShadowResult(lit, counters, timings)

@@ -508,7 +508,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                "table": table, "axes": axes, "extra": extra, "smax": sst["smax"],
                "bias_reject": bool(bias_reject),
                "tests": tests, "sample_count": samples.count}
-    return ShadowResult(lit, counters, timings, method, dict(options or {})), details
+    return ShadowResult(lit, counters, timings), details
 
 
 BOOL = (True, False)
@@ -540,9 +540,20 @@ COMMON_TRAVERSAL_OPTIONS = {
 }
 
 
+#: what clustered_ptsv and ptsv declare to the registry
+TRAVERSAL_DECLARATION = {
+    "kind": "exact", "stages": ("samples", "setup", "build", "traverse", "merge"),
+    "counters": ("samples", "casters", "culled_triangles", "front_face_culled", "tests",
+                 "tests_per_pixel", "node_tests", "trivial_accepts", "trivial_rejects",
+                 "extra_plane_rejects", "leaf_visits", "ta_shadowed", "jobs", "pass2_jobs",
+                 "job_iterations_mean", "job_iterations_max", "job_iterations_top",
+                 "frontier_max", "clusters", "hierarchy_nodes", "hierarchy_bytes",
+                 "saturated_samples", "shadowed", "lit")}
+
+
 @register("clustered_ptsv",
           doc="per-triangle shadow volumes over a view-sample cluster hierarchy",
-          paper="Sintorn et al. 2014",
+          paper="Sintorn et al. 2014", **TRAVERSAL_DECLARATION,
           options={**COMMON_TRAVERSAL_OPTIONS,
                    "bounds": Option("explicit", "node boxes implicit from keys or explicit "
                                     "(min/max of the node's samples)",
@@ -550,7 +561,7 @@ COMMON_TRAVERSAL_OPTIONS = {
                    "storage": Option("compact", "explicit box storage: full tree or pointers "
                                      "+ compact list", allowed=("full", "compact")),
                    "z_bits": Option(0, "depth-slice bits of the key (0: auto, 9 at 1024^2)",
-                                    kind=int, minimum=0),
+                                    kind=int, minimum=0, maximum=32),
                    "depth_slices": Option("clamp", "eq. (1) slices with an open-ended top "
                                           "slice, or 'scaled' so [near, far] fits",
                                           allowed=ch.DEPTH_SLICE_MODES)})

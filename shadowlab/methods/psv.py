@@ -599,8 +599,6 @@ _COMMON = {
 
 def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
          stackless_cap="paper", **o):
-    if stack_size > MAX_STACK:
-        raise ValueError(f"{name}: option 'stack_size' = {stack_size} exceeds {MAX_STACK}")
     timer = StageTimer()
     with timer.stage("samples"):
         samples = view_samples(gbuf, light)
@@ -657,17 +655,23 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
         })
     timer.times["output"] = time.perf_counter() - t_out
     timings = dict(timer.times, total=timer.total)
-    opts = dict(o, stack_size=stack_size) if query != "stackless" else dict(o)
-    if query in ("stackless", "hybrid"):
-        opts["stackless_cap"] = stackless_cap
-    return ShadowResult(lit, counters, timings, name, opts)
+    return ShadowResult(lit, counters, timings)
 
 
-_STACK = {"stack_size": Option(32, "stack entries per sample, at most 63 (a push onto a full "
-                               "stack is lost, as in the original; counted as an overflow)",
-                               kind=int, minimum=1)}
-_HSTACK = {"stack_size": Option(12, "short-stack entries per sample (at most 63) before "
-                                "switching to the stackless query", kind=int, minimum=1)}
+_STACK = {"stack_size": Option(32, "stack entries per sample (a push onto a full stack is "
+                               "lost, as in the original; counted as an overflow)",
+                               kind=int, minimum=1, maximum=MAX_STACK)}
+_HSTACK = {"stack_size": Option(12, "short-stack entries per sample before switching to the "
+                                "stackless query", kind=int, minimum=1, maximum=MAX_STACK)}
+# What every TOP-tree method declares; the query adds its stack or switch counters.
+_COUNTERS = ("samples", "casters", "culled_triangles", "shadowed", "lit", "visited_nodes",
+             "visited_nodes_mean", "visited_nodes_per_pixel", "tree_nodes", "tree_depth",
+             "dropped_triangles", "intersection_triangles", "build_rounds", "query_chunks")
+_STACK_COUNTERS = ("stack_max", "stack_max_per_pixel")
+_OVERFLOW_COUNTERS = ("stack_overflows", "overflow_pixels", "stack_overflows_per_pixel")
+_SWITCH_COUNTERS = ("stackless_switches", "stackless_switches_per_pixel")
+_STAGES = ("samples", "casters", "build_setup", "build", "build_compact", "query_setup",
+           "query", "query_compact", "output")
 _SLCAP = {"stackless_cap": Option("paper", "stackless query at a cap node with an "
                                   "intersection child: 'paper' descends into it (Algorithm 3), "
                                   "'public' never does (the public code; loses occluders)",
@@ -676,7 +680,8 @@ _SLCAP = {"stackless_cap": Option("paper", "stackless query at a cap node with a
 
 @register("psv", doc="Partitioned Shadow Volumes: TOP tree, stack query (Gerhards et al. 2015)",
           paper="Gerhards et al. 2015, as in Mora et al. 2016 (Algorithm 1)",
-          options={**_COMMON, **_STACK})
+          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES,
+          counters=_COUNTERS + _STACK_COUNTERS + _OVERFLOW_COUNTERS)
 def psv(scene, gbuf, light, *, stack_size, **o):
     return _run("psv", scene, gbuf, light, query="stack", depth_test=False,
                 stack_size=stack_size, **o)
@@ -684,7 +689,8 @@ def psv(scene, gbuf, light, *, stack_size, **o):
 
 @register("d_psv", doc="PSV stack query with the depth test (Mora et al. 2016)",
           paper="Mora et al. 2016 (Section 3.3)",
-          options={**_COMMON, **_STACK})
+          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES,
+          counters=_COUNTERS + _STACK_COUNTERS + _OVERFLOW_COUNTERS)
 def d_psv(scene, gbuf, light, *, stack_size, **o):
     return _run("d_psv", scene, gbuf, light, query="stack", depth_test=True,
                 stack_size=stack_size, **o)
@@ -692,7 +698,8 @@ def d_psv(scene, gbuf, light, *, stack_size, **o):
 
 @register("d_stackless", doc="stackless TOP-tree query with ancestor links and depth test "
           "(Mora et al. 2016)", paper="Mora et al. 2016 "
-          "(Algorithm 3)", options={**_COMMON, **_SLCAP})
+          "(Algorithm 3)", options={**_COMMON, **_SLCAP}, kind="exact", stages=_STAGES,
+          counters=_COUNTERS)
 def d_stackless(scene, gbuf, light, *, stackless_cap, **o):
     return _run("d_stackless", scene, gbuf, light, query="stackless", depth_test=True,
                 stackless_cap=stackless_cap, **o)
@@ -701,7 +708,8 @@ def d_stackless(scene, gbuf, light, *, stackless_cap, **o):
 @register("d_hybrid", doc="short-stack TOP-tree query switching to the stackless query "
           "when the stack is full, with depth test (Mora et al. 2016)",
           paper="Mora et al. 2016 (Section 3.5)",
-          options={**_COMMON, **_HSTACK, **_SLCAP})
+          options={**_COMMON, **_HSTACK, **_SLCAP}, kind="exact", stages=_STAGES,
+          counters=_COUNTERS + _STACK_COUNTERS + _SWITCH_COUNTERS)
 def d_hybrid(scene, gbuf, light, *, stack_size, stackless_cap, **o):
     return _run("d_hybrid", scene, gbuf, light, query="hybrid", depth_test=True,
                 stack_size=stack_size, stackless_cap=stackless_cap, **o)

@@ -1,98 +1,67 @@
-"""The method registry: names, options with defaults and allowed values, dispatch.
+"""The method registry: declarations, option validation, dispatch and result stamping.
 
 A method is a function ``fn(scene, gbuf, light, **options) -> ShadowResult`` registered
-with :func:`register`. Every method accepts the common options in ``COMMON_OPTIONS``.
+with :func:`register` (see ``interface.py`` for what it declares). Every method accepts
+the common options in ``COMMON_OPTIONS``. :func:`compute_shadows` is the one way a
+method runs: it checks the light (:func:`check_light`), validates the options, calls the
+method, checks its counters against the declaration and the counter table, and stamps
+the method name, the resolved options and the total run time into the result. Warp
+kernel versions hang off the same entries (:func:`register_kernel`, :func:`run_kernel`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import Callable
 
 from ..counters import check as check_counters
-from ..scene.view import DirectionalLight, PointLight, SphereLight
-
-
-class MethodError(ValueError):
-    """Unknown method or option, or an option value outside its allowed set."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Option:
-    """One method option.
-
-    ``allowed`` is a tuple of allowed values, or a (type, predicate, description)
-    check given by ``kind``/``check`` below.
-    """
-
-    default: Any
-    doc: str
-    allowed: tuple | None = None          # a closed set of values
-    kind: type | tuple | None = None      # the Python type(s) accepted otherwise
-    minimum: float | None = None          # inclusive lower bound for numbers
-
-    def describe_allowed(self) -> str:
-        if self.allowed is not None:
-            return ", ".join(repr(a) for a in self.allowed)
-        kinds = self.kind if isinstance(self.kind, tuple) else (self.kind,)
-        text = " or ".join(k.__name__ for k in kinds if k is not None) or "any"
-        if self.minimum is not None:
-            text += f" >= {self.minimum}"
-        return text
-
-    def validate(self, method: str, name: str, value):
-        if self.allowed is not None:
-            if value not in self.allowed:
-                raise MethodError(f"method {method!r}: option {name}={value!r} is not allowed; "
-                                  f"allowed values: {self.describe_allowed()}")
-            return value
-        if self.kind is not None:
-            kinds = self.kind if isinstance(self.kind, tuple) else (self.kind,)
-            if float in kinds and isinstance(value, int) and not isinstance(value, bool):
-                value = float(value)
-            if isinstance(value, bool) and bool not in kinds:
-                raise MethodError(f"method {method!r}: option {name}={value!r} must be "
-                                  f"{self.describe_allowed()}")
-            if not isinstance(value, kinds):
-                raise MethodError(f"method {method!r}: option {name}={value!r} must be "
-                                  f"{self.describe_allowed()}")
-        if self.minimum is not None and value < self.minimum:
-            raise MethodError(f"method {method!r}: option {name}={value!r} must be "
-                              f"{self.describe_allowed()}")
-        return value
-
+from .interface import (DEFAULT_SHADOW_EPS, MethodError, MethodInfo, MethodKind, Option,
+                        OptionsModel)
 
 COMMON_OPTIONS: dict[str, Option] = {
     "precision": Option("float32", "floating-point precision of the computation",
                         allowed=("float32", "float64")),
-    "shadow_eps": Option(1e-5, "cap-plane bias as a fraction of the scene diagonal "
-                         "(the same offset the Embree reference uses)", kind=float, minimum=0.0),
+    "shadow_eps": Option(DEFAULT_SHADOW_EPS, "cap-plane bias as a fraction of the scene "
+                         "diagonal (the same offset the Embree reference uses)", kind=float,
+                         minimum=0.0),
 }
-
-
-@dataclasses.dataclass(frozen=True)
-class MethodInfo:
-    name: str
-    fn: Callable
-    doc: str
-    options: dict[str, Option]
-    exact: bool                 # hard shadows that must equal reference_shadows
-    soft: bool = False          # returns visibility in [0, 1] for area lights
-    paper: str = ""
-
 
 _REGISTRY: dict[str, MethodInfo] = {}
 
 
 def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
-             exact: bool = True, soft: bool = False, paper: str = ""):
-    """Decorator that adds a method to the registry."""
+             kind: MethodKind | str | None = None, counters: tuple[str, ...] | None = None,
+             stages: tuple[str, ...] = (), exact: bool = True, soft: bool = False,
+             paper: str = ""):
+    """Decorator that adds a method to the registry.
+
+    ``kind`` defaults from the older flags: ``soft`` -> soft, else ``exact`` -> exact,
+    else approximate. ``counters`` (names from ``shadowlab.counters.COUNTERS``) and
+    ``stages`` are checked on every result.
+    """
+    if kind is None:
+        kind = MethodKind.SOFT if soft else (MethodKind.EXACT if exact else
+                                              MethodKind.APPROXIMATE)
+    kind = MethodKind(kind)
+    if counters is not None:
+        check_counters(dict.fromkeys(counters))
+
     def deco(fn):
         opts = dict(COMMON_OPTIONS)
         opts.update(options or {})
-        _REGISTRY[name] = MethodInfo(name, fn, doc, opts, exact, soft, paper)
+        old = _REGISTRY.get(name)
+        _REGISTRY[name] = MethodInfo(name, fn, doc, opts, kind,
+                                     None if counters is None else tuple(counters),
+                                     tuple(stages), paper, old.kernel if old else None)
         return fn
     return deco
+
+
+def register_kernel(name: str, fn: Callable) -> None:
+    """Attach the Warp kernel version ``fn(scene, gbuf, light, **options)`` to method
+    ``name`` (already registered)."""
+    info = get(name)
+    _REGISTRY[name] = dataclasses.replace(info, kernel=fn)
 
 
 def get(name: str) -> MethodInfo:
@@ -108,11 +77,14 @@ def names() -> list[str]:
 
 
 def available() -> dict[str, dict]:
-    """Method name -> {doc, exact, soft, paper, options: {name: {default, allowed, doc}}}."""
+    """Method name -> {doc, kind, exact, soft, kernel, paper, counters, stages,
+    options: {name: {default, allowed, doc}}}."""
     _load_builtin()
     return {
         name: {
-            "doc": info.doc, "exact": info.exact, "soft": info.soft, "paper": info.paper,
+            "doc": info.doc, "kind": info.kind.value, "exact": info.exact, "soft": info.soft,
+            "kernel": info.kernel is not None, "paper": info.paper,
+            "counters": list(info.counters or ()), "stages": list(info.stages),
             "options": {k: {"default": o.default, "allowed": o.describe_allowed(), "doc": o.doc}
                         for k, o in info.options.items()},
         }
@@ -120,33 +92,82 @@ def available() -> dict[str, dict]:
     }
 
 
+def options_model(name: str) -> type[OptionsModel]:
+    """The pydantic model of method ``name``'s options."""
+    return get(name).model
+
+
 def resolve_options(name: str, options: dict) -> dict:
     """All options of ``name`` with defaults filled in; raises MethodError on bad input."""
-    info = get(name)
-    unknown = sorted(set(options) - set(info.options))
-    if unknown:
-        raise MethodError(f"method {name!r}: unknown option(s) {', '.join(unknown)}; "
-                          f"allowed options: {', '.join(sorted(info.options))}")
-    out = {}
-    for key, opt in info.options.items():
-        out[key] = opt.validate(name, key, options.get(key, opt.default))
-    return out
+    return get(name).resolve_options(options)
+
+
+def light_problem(name: str, light) -> str | None:
+    """Why ``light`` does not suit method ``name`` (e.g. a soft method on a point light),
+    or None."""
+    return get(name).light_problem(light)
+
+
+def check_light(name: str, light) -> None:
+    """MethodError if ``light`` does not suit method ``name``."""
+    get(name).check_light(light)
+
+
+def check_result(info: MethodInfo, result) -> None:
+    """The result's counters are in the counter table and are exactly the declared ones,
+    and its stages are declared (MethodError otherwise)."""
+    try:
+        check_counters(result.counters)
+    except KeyError as exc:
+        raise MethodError(f"method {info.name!r}: {exc.args[0]}") from None
+    if info.counters is not None:
+        missing = sorted(set(info.counters) - set(result.counters))
+        extra = sorted(set(result.counters) - set(info.counters))
+        if missing or extra:
+            raise MethodError(f"method {info.name!r}: counters differ from its declaration: "
+                              f"missing {missing}, undeclared {extra}")
+    if info.stages:
+        stages = {k.removesuffix("_compile") for k in result.timings} - {"total"}
+        extra = sorted(stages - set(info.stages))
+        if extra:
+            raise MethodError(f"method {info.name!r}: undeclared timing stage(s) {extra}; "
+                              f"declared: {', '.join(info.stages)}")
+
+
+def stamp(result, name: str, options: dict):
+    """``result`` with the method name, the resolved options and ``timings["total"]`` (the
+    sum of the stage run times, compile excluded) filled in."""
+    timings = dict(result.timings)
+    timings["total"] = sum(v for k, v in timings.items()
+                           if k != "total" and not k.endswith("_compile"))
+    return dataclasses.replace(result, method=name, options=dict(options), timings=timings)
 
 
 def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
     """Run a registered method; see ``shadowlab.methods.available()`` for names and options.
 
     Returns:
-        ShadowResult with ``lit`` [H, W], ``counters`` and ``timings`` (seconds).
+        ShadowResult with ``lit`` [H, W], ``counters``, ``timings`` (seconds per stage,
+        ``<stage>_compile`` apart, ``total``), ``method`` and the resolved ``options``.
     """
     info = get(method)
-    if not isinstance(light, (PointLight, DirectionalLight, SphereLight)):
-        raise MethodError(f"light must be a PointLight, DirectionalLight or SphereLight, "
-                          f"got {type(light).__name__}")
-    if info.soft and not isinstance(light, SphereLight):
-        raise MethodError(f"method {method!r} computes soft shadows and needs a SphereLight")
-    opts = resolve_options(method, options)
+    info.check_light(light)
+    opts = info.resolve_options(options)
     result = info.fn(scene, gbuf, light, **opts)
+    check_result(info, result)
+    return stamp(result, method, opts)
+
+
+def run_kernel(scene, gbuf, light, method: str, **options):
+    """Run the Warp kernel version of ``method`` (MethodError if it has none). Kernel
+    options beyond the method's own (``schedule``, ``form``, ...) pass through; the
+    kernel resolves the method options itself and names its result ``kernels.<method>``."""
+    info = get(method)
+    if info.kernel is None:
+        with_kernel = ", ".join(n for n in names() if get(n).kernel is not None)
+        raise MethodError(f"no kernel version of {method!r}; available: {with_kernel}")
+    info.check_light(light)
+    result = info.kernel(scene, gbuf, light, **options)
     check_counters(result.counters)
     return result
 
@@ -161,3 +182,11 @@ def _load_builtin():
 
     for module in BUILTIN_MODULES:
         importlib.import_module(f"{__package__}.{module}")
+    # The kernel package registers its kernels; it imports Warp only when one runs.
+    importlib.import_module("shadowlab.kernels")
+
+
+__all__ = ["BUILTIN_MODULES", "COMMON_OPTIONS", "DEFAULT_SHADOW_EPS", "MethodError",
+           "MethodInfo", "MethodKind", "Option", "available", "check_light", "check_result",
+           "compute_shadows", "get", "light_problem", "names", "options_model", "register",
+           "register_kernel", "resolve_options", "run_kernel", "stamp"]

@@ -18,15 +18,16 @@ class ShadowResult:
             [H, W] for ``*_per_pixel`` maps.
         timings: seconds per stage; ``<stage>_compile`` is compile time kept apart;
             ``total`` is the sum of run times, compile excluded.
-        method: the registry name.
-        options: the full option set used (defaults filled in).
+        method: the registry name (stamped by ``registry.compute_shadows``; a method
+            function leaves it empty).
+        options: the full option set used, defaults filled in (stamped likewise).
     """
 
     lit: np.ndarray
     counters: dict
     timings: dict
-    method: str
-    options: dict
+    method: str = ""
+    options: dict = dataclasses.field(default_factory=dict)
 
     def scalar_counters(self) -> dict:
         """Counters without the per-pixel maps (JSON-friendly)."""

@@ -642,14 +642,7 @@ def soft_tiled_impl(scene, gbuf, light, *, culling: CullSettings, precision, sha
         "near_clamp_per_pixel": to_image(clamped),
     }
     timings = dict(timer.times, total=timer.total)
-    options = {"precision": precision, "shadow_eps": shadow_eps, "grid": grid, "rotate": rotate,
-               "seed": seed, "projection": projection, "disk_scale": disk_scale,
-               "horizon": horizon, **dataclasses.asdict(culling), "chunk": chunk,
-               "defer": defer}
-    if mode == "overlap":
-        for k in ("grid", "rotate", "seed", "projection", "defer"):
-            options.pop(k)
-    return ShadowResult(vis_img, counters, timings, method, options)
+    return ShadowResult(vis_img, counters, timings)
 
 
 def split_culling(opts: dict) -> tuple[CullSettings, dict]:
@@ -691,7 +684,21 @@ COMMON_SOFT = {
 }
 
 
-@register("soft_tiled", exact=False, soft=True,
+#: what both soft methods declare to the registry
+SOFT_DECLARATION = {
+    "kind": "soft",
+    "stages": ("setup", "gather", "gather_test", "tile_bounds", "tile_cull", "tile_lists",
+               "eval_setup", "eval", "output"),
+    "counters": ("samples", "casters", "culled_triangles", "tests", "tests_per_pixel",
+                 "soft_clusters", "light_facing_survivors", "gather_clusters",
+                 "gather_triangles", "active_tiles", "tiles", "tile_cluster_pairs",
+                 "tile_cluster_survivors", "tile_triangle_pairs", "tile_triangles",
+                 "tile_triangles_max", "tile_list_lengths", "tile_triangles_per_pixel",
+                 "overflow_tiles", "overflow_tiles_per_pixel", "dropped_entries",
+                 "rasterized_triangles", "rasterized_per_pixel", "near_clamp_per_pixel")}
+
+
+@register("soft_tiled", **SOFT_DECLARATION,
           doc="tiled per-triangle soft shadows: sun-disk bitmask rasterizer with cone "
               "culling per 16x16 tile", paper="Kalbertodt 2023",
           options={"grid": GRID_OPTION,
@@ -714,7 +721,7 @@ def soft_tiled(scene, gbuf, light, **opts):
                            method="soft_tiled", **rest)
 
 
-@register("soft_overlap_sum", exact=False, soft=True,
+@register("soft_overlap_sum", **SOFT_DECLARATION,
           doc="naive comparison: sum of analytic disk-triangle overlap areas (double-counts "
               "overlapping occluders)", paper="Kalbertodt 2023",
           options=dict(COMMON_SOFT))

@@ -128,25 +128,26 @@ def _stencil(scene, gbuf, light, *, zfail, precision, shadow_eps, chunk, bias):
         "eye_in_volumes": eye_in,
         "shadowed": int(shadow.sum()), "lit": int(lit.sum()),
     }
-    return ShadowResult(lit, counters, dict(timer.times, total=timer.total), name,
-                        {"precision": precision, "shadow_eps": shadow_eps, "chunk": chunk,
-                         "bias": bias})
+    return ShadowResult(lit, counters, dict(timer.times, total=timer.total))
 
 
 _OPTIONS = {"chunk": Option(16, "triangles per unrolled loop step", allowed=(4, 8, 16, 32)),
             "bias": Option("receiver", "self-shadowing bias ('receiver' as the reference, "
                            "'cap' as the papers)", allowed=BIAS_MODES)}
+_DECLARED = {"kind": "exact", "stages": ("samples", "setup", "bias", "stencil"),
+             "counters": ("samples", "casters", "culled_triangles", "tests", "stencil_updates",
+                          "stencil_updates_per_pixel", "eye_in_volumes", "shadowed", "lit")}
 
 
 @register("zpass", doc="stencil shadow volumes (depth pass) of per-triangle shadow quads: "
           "stencil update counts", paper="Heidmann 1991 (baseline in Sintorn et al. 2014)",
-          options=_OPTIONS)
+          options=_OPTIONS, **_DECLARED)
 def zpass(scene, gbuf, light, **opts):
     return _stencil(scene, gbuf, light, zfail=False, **opts)
 
 
 @register("zfail", doc="stencil shadow volumes (depth fail, capped) of per-triangle shadow "
           "quads: stencil update counts", paper="Carmack 2000 (baseline in Sintorn et al. 2014)",
-          options=_OPTIONS)
+          options=_OPTIONS, **_DECLARED)
 def zfail(scene, gbuf, light, **opts):
     return _stencil(scene, gbuf, light, zfail=True, **opts)
