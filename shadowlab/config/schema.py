@@ -23,6 +23,7 @@ from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, StrictBool, 
 from pydantic_core import PydanticCustomError
 
 from ..io import jsonable
+from ..raycast import DEFAULT_SHADOW_EPS
 from ..scene import procedural
 from ..scene.mesh import Scene
 from ..scene.view import View
@@ -233,7 +234,7 @@ class ReferenceConfig(BaseModel):
     pixel and seed of the soft-shadow reference."""
 
     model_config = _TABLE
-    shadow_eps: number(float, ge=0, unit=" (fraction of the scene diagonal)") = 1e-5
+    shadow_eps: number(float, ge=0, unit=" (fraction of the scene diagonal)") = DEFAULT_SHADOW_EPS
     soft_rays: number(int, ge=1) = 64
     seed: number(int, ge=0) = 0
 
