@@ -57,7 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..methods.common import bucket
+from ..core.capacity import bucket
 from ..timing import compiled
 
 LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop

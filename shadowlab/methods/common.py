@@ -1,6 +1,4 @@
-"""Helpers every method shares: precision, view samples and their padding, the bias.
-
-``bucket`` is re-exported from ``shadowlab.core.capacity`` for older imports."""
+"""Helpers every method shares: precision, view samples and their padding, the bias."""
 
 from __future__ import annotations
 

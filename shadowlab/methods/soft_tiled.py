@@ -69,7 +69,8 @@ from ..structures.tile_lists import (
 )
 from ..timing import StageTimer
 from . import sun_disk as sd
-from .common import bucket, precision_mode
+from ..core.capacity import bucket
+from .common import precision_mode
 from .registry import Option, register
 from .result import ShadowResult
 

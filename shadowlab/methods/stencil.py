@@ -33,7 +33,8 @@ from ..scene.view import hard_light
 from ..timing import StageTimer
 from ..core.capacity import pad
 from ..geometry.triangle_setup import shadow_volume_planes as setup
-from .common import BIAS_MODES, bucket, caster_terms, precision_mode, view_samples
+from ..core.capacity import bucket
+from .common import BIAS_MODES, caster_terms, precision_mode, view_samples
 from .registry import Option, register
 from .result import ShadowResult
 

@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..methods.common import bucket
+from ..core.capacity import bucket
 from ..scene.view import SphereLight
 
 GOLDEN_ITERS = 16       # golden-section steps of the capsule test

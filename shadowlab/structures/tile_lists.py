@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..methods.common import bucket
+from ..core.capacity import bucket
 from .cones import cone_hits_capsule
 
 TILE = 16               # tile side in pixels
