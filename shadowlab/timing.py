@@ -2,18 +2,21 @@
 
 ``compiled(fn, *args)`` lowers and compiles a jitted function once per argument
 signature (shapes, dtypes, static values, x64 mode) and records how long that took;
-later calls reuse the executable. ``StageTimer`` accumulates wall-clock seconds per
-stage, blocking on JAX results so asynchronous dispatch is not mistaken for speed.
+later calls reuse the executable (the ``MAX_COMPILED`` most recently used are kept).
+``StageTimer`` accumulates wall-clock seconds per stage, blocking on JAX results so
+asynchronous dispatch is not mistaken for speed.
 """
 
 from __future__ import annotations
 
 import contextlib
 import time
+from collections import OrderedDict
 
 import jax
 
-_COMPILED: dict = {}
+_COMPILED: OrderedDict = OrderedDict()
+MAX_COMPILED = 64        # executables kept (least recently used dropped first)
 
 
 def _signature(args) -> tuple:
@@ -32,11 +35,14 @@ def compiled(fn, *args):
     key = (fn, _signature(args))
     exe = _COMPILED.get(key)
     if exe is not None:
+        _COMPILED.move_to_end(key)
         return exe, 0.0
     t0 = time.perf_counter()
     exe = fn.lower(*args).compile()
     dt = time.perf_counter() - t0
     _COMPILED[key] = exe
+    while len(_COMPILED) > MAX_COMPILED:
+        _COMPILED.popitem(last=False)
     return exe, dt
 
 

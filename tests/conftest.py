@@ -1,8 +1,33 @@
+"""Test-session set-up: one pytest process runs the whole suite.
+
+Compilation caches are hermetic: every session gets a fresh temporary folder for JAX's
+persistent cache and Warp's kernel cache, and removes it at the end, so the tests never
+read or write the user's caches (``~/.cache/shadowlab``) and every session starts cold.
+To keep a warm cache between sessions while iterating, point ``SHADOWLAB_TEST_CACHE`` at
+a folder of your own (it is used for tests only and never removed).
+"""
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
 import pytest
 
-from shadowlab.jaxcache import enable_compilation_cache
+_KEEP = os.environ.get("SHADOWLAB_TEST_CACHE")
+CACHE_ROOT = Path(_KEEP) if _KEEP else Path(tempfile.mkdtemp(prefix="shadowlab-tests-"))
+# Set before anything compiles; subprocesses started by tests inherit them.
+os.environ["SHADOWLAB_JAX_CACHE"] = str(CACHE_ROOT / "jax")
+os.environ["SHADOWLAB_WARP_CACHE"] = str(CACHE_ROOT / "warp")
 
-enable_compilation_cache()
+from shadowlab.jaxcache import enable_compilation_cache  # noqa: E402
+
+enable_compilation_cache(CACHE_ROOT / "jax")
+
+
+def pytest_unconfigure(config):
+    if not _KEEP:
+        shutil.rmtree(CACHE_ROOT, ignore_errors=True)
 
 
 @pytest.fixture(params=["float32", "float64"])
@@ -13,24 +38,21 @@ def precision(request):
 
 def pytest_ignore_collect(collection_path, config):
     """Under a marker expression that excludes ``kernels`` the kernel test files are not
-    even imported, so Warp (and its bundled LLVM) never loads next to XLA there."""
+    imported at all, so such a run does not pay for importing and initialising Warp."""
     expr = config.getoption("markexpr", "") or ""
     if "not kernels" in expr and collection_path.name.startswith("test_kernels"):
         return True
     return None
 
 
-ISOLATED = {"test_soft_tiled": "soft", "test_sun_disk": "soft"}
+SOFT = {"test_soft_tiled", "test_sun_disk"}
 
 
 def pytest_collection_modifyitems(config, items):
-    """Tag the tests the README test command runs in processes of their own: the Warp
-    kernel tests (Warp's bundled LLVM never loads next to XLA), and the soft-shadow tests
-    (``soft``): on a cold cache, XLA segfaults serializing one soft_tiled executable for
-    the persistent cache when the process has compiled the rest of the suite before
-    (reproduced twice; the same tests pass cold on their own). Not diagnosed further."""
+    """Markers for selective runs (the full suite runs in one process): ``kernels`` for
+    the Warp kernel tests, ``soft`` for the soft-shadow tests."""
     for item in items:
         if item.module.__name__.startswith("test_kernels"):
             item.add_marker(pytest.mark.kernels)
-        elif item.module.__name__ in ISOLATED:
-            item.add_marker(getattr(pytest.mark, ISOLATED[item.module.__name__]))
+        elif item.module.__name__ in SOFT:
+            item.add_marker(pytest.mark.soft)

@@ -1,10 +1,14 @@
-"""The persistent compilation cache writes entries atomically."""
+"""Compilation caches: atomic persistent entries, a cache of the test session's own,
+and a bounded in-memory cache of executables."""
 
 import os
+from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import pytest
 
-from shadowlab import jaxcache
+from shadowlab import jaxcache, timing
 
 
 def _cache(tmp_path):
@@ -33,3 +37,25 @@ def test_an_interrupted_write_leaves_no_entry(tmp_path, monkeypatch):
     monkeypatch.undo()
     assert cache.get("k") is None          # absent, not truncated
     assert list(tmp_path.iterdir()) == []  # and no temporary file left behind
+
+
+def test_the_session_compiles_into_its_own_cache():
+    """conftest points JAX at the session's folder, never at the user's cache."""
+    d = Path(jax.config.jax_compilation_cache_dir)
+    assert d == Path(os.environ["SHADOWLAB_JAX_CACHE"])
+    if not os.environ.get("SHADOWLAB_TEST_CACHE"):
+        assert Path.home() / ".cache" / "shadowlab" not in [d, *d.parents]
+    jax.jit(lambda x: x * 3.25 + 17.0)(jnp.arange(13.0)).block_until_ready()
+    assert any(p.name.endswith(jaxcache._SUFFIX) for p in d.iterdir())
+
+
+def test_compiled_keeps_only_the_most_recent_executables(monkeypatch):
+    monkeypatch.setattr(timing, "_COMPILED", type(timing._COMPILED)())
+    monkeypatch.setattr(timing, "MAX_COMPILED", 2)
+    f = jax.jit(lambda x: x + 1)
+    args = [jnp.zeros(n) for n in (3, 4, 5)]
+    for a in args:
+        assert timing.compiled(f, a)[1] > 0          # compiled, not found
+    assert len(timing._COMPILED) == 2
+    assert timing.compiled(f, args[2])[1] == 0.0     # most recent: kept
+    assert timing.compiled(f, args[0])[1] > 0        # oldest: dropped, compiled again
