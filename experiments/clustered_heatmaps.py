@@ -127,6 +127,6 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
 
 # %%
 if __name__ == "__main__":
-    from shadowlab.figures import run_as_script
+    from shadowlab.harness.figures import run_as_script
 
     run_as_script(__file__)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.analysis.boundary import unexplained_count
+from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
 from shadowlab.scene.view import Animation, PointLight
 
@@ -200,6 +200,6 @@ def check(arrays: dict, cfg: dict) -> None:
 
 # %%
 if __name__ == "__main__":
-    from shadowlab.figures import run_as_script
+    from shadowlab.harness.figures import run_as_script
 
     run_as_script(__file__)

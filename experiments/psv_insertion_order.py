@@ -21,9 +21,9 @@ from __future__ import annotations
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.analysis.boundary import unexplained_count
+from shadowlab.reference.boundary import unexplained_count
 from shadowlab.methods import psv as psvm
-from shadowlab.methods.common import precision_mode, view_samples
+from shadowlab.core.frame import precision_mode, view_samples
 from shadowlab.scene.procedural import default_view
 
 STATS = ("tree_nodes", "tree_depth", "tree_depth_mean", "intersection_triangles",
@@ -134,6 +134,6 @@ def check(arrays: dict, cfg: dict) -> None:
 
 # %%
 if __name__ == "__main__":
-    from shadowlab.figures import run_as_script
+    from shadowlab.harness.figures import run_as_script
 
     run_as_script(__file__)

@@ -141,6 +141,6 @@ def check(arrays: dict, cfg: dict) -> None:
 
 # %%
 if __name__ == "__main__":
-    from shadowlab.figures import run_as_script
+    from shadowlab.harness.figures import run_as_script
 
     run_as_script(__file__)

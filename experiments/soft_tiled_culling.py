@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.figures import scene_view
+from shadowlab.harness.figures import scene_view
 
 VARIANTS = [("capsule", {"bound": "capsule"}), ("sphere", {"bound": "sphere"}),
             ("capsule half-z", {"bound": "capsule", "half_z": True}),
@@ -145,6 +145,6 @@ def check(arrays: dict, cfg: dict) -> None:
 
 # %%
 if __name__ == "__main__":
-    from shadowlab.figures import run_as_script
+    from shadowlab.harness.figures import run_as_script
 
     run_as_script(__file__)

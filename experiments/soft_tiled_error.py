@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.figures import scene_view
+from shadowlab.harness.figures import scene_view
 from shadowlab.analysis.metrics import compare_soft
 
 
@@ -220,6 +220,6 @@ def check(arrays: dict, cfg: dict) -> None:
 
 # %%
 if __name__ == "__main__":
-    from shadowlab.figures import run_as_script
+    from shadowlab.harness.figures import run_as_script
 
     run_as_script(__file__)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.figures import scene_view
+from shadowlab.harness.figures import scene_view
 
 VARIANTS = [("paper, front", {"projection": "paper", "face_cull": "front"}),
             ("homog., front", {"projection": "homogeneous", "face_cull": "front"}),
@@ -93,6 +93,6 @@ def check(arrays: dict, cfg: dict) -> None:
 
 # %%
 if __name__ == "__main__":
-    from shadowlab.figures import run_as_script
+    from shadowlab.harness.figures import run_as_script
 
     run_as_script(__file__)

@@ -13,10 +13,10 @@ The public API (see README.md)::
 """
 
 from . import harness, methods, scene
-from .counters import COUNTERS
+from .core.counters import COUNTERS
 from .harness import evaluate
 from .methods import MethodError, ShadowResult, compute_shadows
-from .raycast import GBuffer, reference_shadows, render_gbuffer, soft_reference
+from .reference.raycast import GBuffer, reference_shadows, render_gbuffer, soft_reference
 from .scene import (Animation, Camera, DirectionalLight, PointLight, Scene, SceneError,
                     SphereLight, View, load_scene)
 

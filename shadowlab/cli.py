@@ -53,7 +53,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _cmd_run(args) -> int:
     from .config import load_config
-    from .pipeline import format_table, run
+    from .harness.run import format_table, run
 
     config = load_config(args.config, args.overrides)
     out = run(config, out_dir=args.out, progress=not args.quiet)
@@ -84,7 +84,7 @@ def _cmd_scenes(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from .bench import default_cases, format_bench, run_bench
+    from .harness.bench import default_cases, format_bench, run_bench
     from .config import ConfigError, load_config
 
     if args.config:
@@ -110,7 +110,7 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_figures(args) -> int:
-    from .figures import regenerate
+    from .harness.figures import regenerate
 
     failures = regenerate(Path(args.root), size=args.size, only=args.only,
                           progress=not args.quiet)
@@ -119,8 +119,8 @@ def _cmd_figures(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     from .config import ConfigError
-    from .figures import ExperimentError
-    from .jaxcache import enable_compilation_cache
+    from .harness.figures import ExperimentError
+    from .core.jaxcache import enable_compilation_cache
     from .methods import MethodError
     from .scene import SceneError
 

@@ -20,7 +20,7 @@ CACHE_ROOT = Path(_KEEP) if _KEEP else Path(tempfile.mkdtemp(prefix="shadowlab-t
 os.environ["SHADOWLAB_JAX_CACHE"] = str(CACHE_ROOT / "jax")
 os.environ["SHADOWLAB_WARP_CACHE"] = str(CACHE_ROOT / "warp")
 
-from shadowlab.jaxcache import enable_compilation_cache  # noqa: E402
+from shadowlab.core.jaxcache import enable_compilation_cache  # noqa: E402
 
 enable_compilation_cache(CACHE_ROOT / "jax")
 

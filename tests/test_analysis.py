@@ -4,8 +4,8 @@ import numpy as np
 
 from shadowlab import Camera, PointLight, Scene
 from shadowlab.analysis import compare_hard, compare_soft, error_map
-from shadowlab.analysis.boundary import boundary_distance, edge_tolerance, unexplained_mismatches
-from shadowlab.raycast import GBuffer
+from shadowlab.reference.boundary import boundary_distance, edge_tolerance, unexplained_mismatches
+from shadowlab.reference.raycast import GBuffer
 
 
 def test_error_map_and_counts():

@@ -207,8 +207,8 @@ def test_setup_rounding_is_the_same_at_every_size(precision):
     import jax.numpy as jnp
 
     from shadowlab.geometry.triangle_setup import shadow_volume_planes as setup
-    from shadowlab.methods.common import precision_mode
-    from shadowlab.methods.volume_planes import post_perspective_planes
+    from shadowlab.core.frame import precision_mode
+    from shadowlab.geometry.volume_planes import post_perspective_planes
     from shadowlab.scene.view import hard_light
 
     with precision_mode(precision) as dt:

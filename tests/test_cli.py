@@ -129,7 +129,7 @@ def test_every_user_error_exits_2_with_the_prefix(tmp_path, capsys):
 
 
 def test_interrupted_write_leaves_no_half_written_file(tmp_path, monkeypatch):
-    import shadowlab.io as sio
+    import shadowlab.core.io as sio
 
     def explode(*args, **kwargs):
         raise KeyboardInterrupt
@@ -215,7 +215,7 @@ def test_bench_soft_method_reports_embree_time_at_equal_error(tmp_path):
 
 
 def test_embree_time_at_equal_error_interpolates_log_log():
-    from shadowlab.bench import embree_seconds_at_error
+    from shadowlab.harness.bench import embree_seconds_at_error
 
     curve = [{"mae": 0.04, "seconds": 1.0}, {"mae": 0.01, "seconds": 16.0}]
     assert embree_seconds_at_error(curve, 0.02) == pytest.approx(4.0)

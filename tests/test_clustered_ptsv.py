@@ -11,7 +11,7 @@ import pytest
 
 import shadowlab as sl
 from shadowlab.geometry.triangle_setup import shadow_volume_planes
-from shadowlab.methods import cluster_hierarchy as ch
+from shadowlab.structures import cluster_hierarchy as ch
 from shadowlab.methods.clustered_ptsv import post_perspective_planes, run_traversal_method
 from shadowlab.scene.procedural import default_view
 
@@ -120,7 +120,7 @@ def test_frames_share_compiled_kernels():
 
 def _samples_of(name, res=RES):
     scene, gbuf, light, _ = _setup(name, res)
-    from shadowlab.methods.common import view_samples
+    from shadowlab.core.frame import view_samples
     return scene, gbuf, light, view_samples(gbuf, light)
 
 
@@ -190,7 +190,7 @@ def test_post_perspective_planes_orientation_and_shared_edges(precision):
     tris = np.array([[a, b, rng.uniform(-2, 2, 3)], [b, a, rng.uniform(-2, 2, 3)]])
     tris = np.concatenate([tris, rng.uniform(-2, 2, (30, 3, 3))])
     light = np.array([3.0, 9.0, 1.0, 1.0])
-    from shadowlab.methods.common import precision_mode
+    from shadowlab.core.frame import precision_mode
     with precision_mode(precision):
         planes, valid = shadow_volume_planes(jnp.asarray(tris, dtype), jnp.asarray(light, dtype))
         planes = planes.reshape(-1, 4, 4)

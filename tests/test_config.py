@@ -563,7 +563,7 @@ def test_experiment_config_errors_name_file_and_key(tmp_path, text, expect):
 
 
 def test_experiment_config_error_through_figures(tmp_path):
-    from shadowlab.figures import ExperimentError, load_experiment_config
+    from shadowlab.harness.figures import ExperimentError, load_experiment_config
 
     write(tmp_path / "configs" / "experiments" / "demo.ci.toml", "resolution = 'big'\n")
     with pytest.raises(ExperimentError) as info:

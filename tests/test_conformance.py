@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 import shadowlab as sl
-from shadowlab.analysis.boundary import unexplained_mismatches
-from shadowlab.counters import COUNTERS
+from shadowlab.reference.boundary import unexplained_mismatches
+from shadowlab.core.counters import COUNTERS
 from shadowlab.methods import MethodError, MethodKind, registry
 from shadowlab.scene.procedural import default_view
 

@@ -3,14 +3,14 @@
 from pathlib import Path
 
 from shadowlab import methods
-from shadowlab.counters import COUNTERS, markdown_table
+from shadowlab.core.counters import COUNTERS, markdown_table
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_counter_doc_is_generated_from_the_table():
     text = (ROOT / "docs" / "counters.md").read_text()
-    assert markdown_table() in text, "regenerate: python -m shadowlab.counters > docs/counters.md"
+    assert markdown_table() in text, "regenerate: python -m shadowlab.core.counters > docs/counters.md"
 
 
 def test_every_counter_name_is_unique_and_documented():

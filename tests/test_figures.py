@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shadowlab.figures import discover, regenerate, run_experiment
+from shadowlab.harness.figures import discover, regenerate, run_experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 EXPERIMENTS = sorted(discover(ROOT))
@@ -48,7 +48,7 @@ def test_brute_force_check_fails_on_a_wrong_array(tmp_path):
 
 
 def test_unknown_experiment_is_an_error(tmp_path):
-    from shadowlab.figures import ExperimentError
+    from shadowlab.harness.figures import ExperimentError
 
     with pytest.raises(ExperimentError, match="available"):
         regenerate(ROOT, only=["nope"], out=tmp_path)
@@ -77,7 +77,7 @@ def claims(arrays, cfg):
 def test_claims_are_recorded_and_enforced_only_where_required(tmp_path, required):
     import json
 
-    from shadowlab.figures import ClaimFailed
+    from shadowlab.harness.figures import ClaimFailed
 
     (tmp_path / "experiments").mkdir()
     (tmp_path / "configs" / "experiments").mkdir(parents=True)

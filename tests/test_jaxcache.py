@@ -8,7 +8,8 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from shadowlab import jaxcache, timing
+from shadowlab.core import jaxcache
+from shadowlab.core import timing
 
 
 def _cache(tmp_path):

@@ -83,7 +83,7 @@ def test_setup_is_bit_exact(name):
     import jax.numpy as jnp
 
     from shadowlab.geometry.triangle_setup import shadow_volume_planes as setup
-    from shadowlab.methods.volume_planes import post_perspective_planes
+    from shadowlab.geometry.volume_planes import post_perspective_planes
     from shadowlab.scene.view import hard_light
 
     scene, light, gbuf, _ = _scene(name)

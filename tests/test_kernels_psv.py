@@ -9,7 +9,7 @@ wp = pytest.importorskip("warp")
 import shadowlab as sl  # noqa: E402
 from shadowlab import kernels  # noqa: E402
 from shadowlab.kernels import psv as kpsv  # noqa: E402
-from shadowlab.methods import top_tree as tt  # noqa: E402
+from shadowlab.structures import top_tree as tt  # noqa: E402
 from shadowlab.methods.registry import resolve_options  # noqa: E402
 from shadowlab.scene.procedural import default_view  # noqa: E402
 

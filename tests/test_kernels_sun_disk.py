@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("warp")
 
 from shadowlab.kernels import sun_disk as ks  # noqa: E402
-from shadowlab.methods import sun_disk as sd  # noqa: E402
+from shadowlab.structures import sun_disk as sd  # noqa: E402
 
 
 def _inputs(seed, f=400, t=6, snap=None):

@@ -7,8 +7,8 @@ import pytest
 import shadowlab as sl
 from shadowlab.cli import main
 from shadowlab.methods import MethodError, MethodKind, Option, registry
-from shadowlab.methods.result import ShadowResult
-from shadowlab.raycast import DEFAULT_SHADOW_EPS
+from shadowlab.core.result import ShadowResult
+from shadowlab.reference.raycast import DEFAULT_SHADOW_EPS
 
 
 def test_stack_size_over_its_maximum_exits_2_naming_method_option_value_and_bound(

@@ -10,7 +10,7 @@ import pytest
 
 from shadowlab.core.numerics import (cross3, opaque, opaque_mul, opaque_multiplier,
                                      opaque_zero, ordered_dot, ordered_sum)
-from shadowlab.methods.common import precision_mode
+from shadowlab.core.frame import precision_mode
 
 
 def _operands(dt, n=4096, seed=0):

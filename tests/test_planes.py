@@ -10,7 +10,7 @@ from hypothesis import given, settings, strategies as st
 
 from shadowlab.core.capacity import bucket, pad
 from shadowlab.geometry.triangle_setup import lex_less, shadow_volume_planes
-from shadowlab.methods.common import precision_mode
+from shadowlab.core.frame import precision_mode
 
 coord = st.floats(-10, 10, allow_nan=False, allow_infinity=False, width=32)
 point = st.tuples(coord, coord, coord)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from shadowlab import raycast
+from shadowlab.reference import raycast
 from shadowlab.scene import (GENERATORS, Camera, PointLight, Scene, SceneError, SphereLight,
                              View, default_view, generators, load_scene, make, mesh_report)
 from shadowlab.scene import primitives as prim

@@ -5,8 +5,8 @@ import pytest
 
 import shadowlab as sl
 from shadowlab.methods import psv as psvm
-from shadowlab.methods import top_tree as tt
-from shadowlab.methods.common import precision_mode, view_samples
+from shadowlab.structures import top_tree as tt
+from shadowlab.core.frame import precision_mode, view_samples
 from shadowlab.scene.procedural import default_view
 
 METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")

@@ -96,7 +96,7 @@ def test_estimate_counts_the_real_per_pixel_arrays():
                                                         "triangle", "valid"))
     assert gbuf_bytes / pixels == resources.GBUFFER
     # What a run keeps per frame: valid, reference, the method's lit mask and maps.
-    from shadowlab.pipeline import run
+    from shadowlab.harness.run import run
     out = run(cfg, progress=False, write=False)
     kept = sum(a.nbytes for a in out.arrays.values())
     est = estimate_run_bytes((12, 10), 1, methods=1)

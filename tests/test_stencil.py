@@ -47,7 +47,7 @@ def _crossings(p, eye, near_l, planes):
 def test_update_counts_against_a_loop():
     scene, gbuf, light = _setup("sphere_grid", res=24)
     from shadowlab.geometry.triangle_setup import shadow_volume_planes
-    from shadowlab.methods.common import precision_mode, view_samples
+    from shadowlab.core.frame import precision_mode, view_samples
     import jax.numpy as jnp
     with precision_mode("float64"):
         planes, valid = shadow_volume_planes(jnp.asarray(scene.triangles),

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from shadowlab.core.numerics import opaque_zero
-from shadowlab.methods import sun_disk as sd
+from shadowlab.structures import sun_disk as sd
 
 
 def test_disk_mask_constants():

@@ -12,11 +12,11 @@ import math
 import numpy as np
 import pytest
 
-from shadowlab.methods.common import precision_mode
+from shadowlab.core.frame import precision_mode
 from shadowlab.scene.view import SphereLight
 from shadowlab.structures import cones as cn
 from shadowlab.structures import tile_lists as tl
-from shadowlab.timing import StageTimer
+from shadowlab.core.timing import StageTimer
 
 
 def _np_cone_hits(cone, s0, s1, r0, r1):

@@ -5,8 +5,8 @@ import pytest
 
 import shadowlab as sl
 from shadowlab.methods import psv as psvm
-from shadowlab.methods import top_tree as tt
-from shadowlab.methods.common import precision_mode, view_samples
+from shadowlab.structures import top_tree as tt
+from shadowlab.core.frame import precision_mode, view_samples
 from shadowlab.scene.procedural import default_view
 
 
@@ -117,7 +117,7 @@ def test_depth_and_ancestor_against_a_plain_loop(precision):
 
 
 def tt_cap_extra(scene):
-    from shadowlab.methods.common import cap_bias
+    from shadowlab.core.frame import cap_bias
     return cap_bias(scene, 1e-5)
 
 

@@ -21,7 +21,7 @@ from typing import Any, Sequence
 
 from pydantic import BaseModel, ValidationError
 
-from ..io import jsonable
+from ..core.io import jsonable
 from ..scene import procedural
 from ..scene.mesh import SUPPORTED_FORMATS, SceneError
 from . import resources

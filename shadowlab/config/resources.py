@@ -1,8 +1,8 @@
 """Refusing work too large for the machine, before anything is allocated.
 
 :func:`estimate_run_bytes` adds up the arrays a run holds per pixel (the byte counts
-below follow the dtypes of :func:`shadowlab.raycast.render_gbuffer`,
-:func:`shadowlab.raycast.reference_shadows` and :mod:`shadowlab.pipeline`):
+below follow the dtypes of :func:`shadowlab.reference.raycast.render_gbuffer`,
+:func:`shadowlab.reference.raycast.reference_shadows` and :mod:`shadowlab.harness.run`):
 
 - per frame, transient: the primary rays (origins and directions, float64 x 3 each),
   Embree's hit record, the G-buffer (position and normal float64 x 3, depth float64,

@@ -22,8 +22,8 @@ from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, StrictBool, 
                       StrictInt, StrictStr, model_validator)
 from pydantic_core import PydanticCustomError
 
-from ..io import jsonable
-from ..raycast import DEFAULT_SHADOW_EPS
+from ..core.io import jsonable
+from ..reference.raycast import DEFAULT_SHADOW_EPS
 from ..scene import procedural
 from ..scene.mesh import Scene
 from ..scene.view import View

@@ -58,7 +58,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.capacity import bucket
-from ..timing import compiled
+from ..core.timing import compiled
 
 LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop
 EXPAND_CHUNK = 2048      # frontier entries per step of the expand loop

@@ -162,7 +162,7 @@ def write_benchmarks_md(bench_json_paths, out_path) -> Path:
     Each file gets a section labelled by its file name. The text below
     :data:`KEEP_MARKER` in an existing ``out_path`` is kept. Returns ``out_path``.
     """
-    from .. import io
+    from ..core import io
 
     out_path = Path(out_path)
     named = [(Path(p).name, json.loads(Path(p).read_text())) for p in bench_json_paths]

@@ -25,10 +25,10 @@ from typing import Callable
 import numpy as np
 
 from ..analysis import compare_hard, compare_soft
-from ..analysis.boundary import unexplained_count
+from ..reference.boundary import unexplained_count
 from ..methods.interface import DEFAULT_SHADOW_EPS, MethodKind
 from ..methods.registry import compute_shadows, get
-from ..methods.result import ShadowResult
+from ..core.result import ShadowResult
 
 DEFAULT_WARMUP = 1      # warm-up calls (compile kept apart)
 DEFAULT_REPEATS = 3     # warm calls whose median is reported
@@ -59,7 +59,7 @@ class References:
     def hard(self, repeats: int = 1) -> np.ndarray:
         """bool [H, W] lit mask of Embree shadow rays; the pass is run (and timed) until
         it has run ``repeats`` times."""
-        from ..raycast import reference_shadows
+        from ..reference.raycast import reference_shadows
 
         while self._hard is None or len(self.hard_seconds) < repeats:
             t0 = time.perf_counter()
@@ -70,7 +70,7 @@ class References:
 
     def soft(self) -> np.ndarray:
         """float [H, W] visibility in [0, 1] of the area light (Monte Carlo, Embree)."""
-        from ..raycast import soft_reference
+        from ..reference.raycast import soft_reference
 
         if self._soft is None:
             t0 = time.perf_counter()

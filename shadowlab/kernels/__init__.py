@@ -10,7 +10,7 @@ Warp is optional (``pip install -e ".[kernels]"``): ``import shadowlab`` never i
 it; :func:`available` says whether it is installed, and the functions below import
 it on first use::
 
-    from shadowlab import kernels
+    from .. import kernels
     if kernels.available():
         res = kernels.compute_shadows(scene, gbuf, light, method="d_psv")
         tree, stats = kernels.psv_build(build_input)

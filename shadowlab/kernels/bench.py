@@ -38,8 +38,8 @@ def _median(fn, repeats):
 
 def bench_psv(size: int, repeats: int, scene_name: str = "gate", params=None) -> dict:
     import shadowlab as sl
-    from shadowlab import kernels
-    from shadowlab.scene.procedural import default_view
+    from .. import kernels
+    from ..scene.procedural import default_view
 
     params = params or {}
     scene = sl.load_scene(scene_name, **params)
@@ -89,8 +89,8 @@ def bench_clustered(size: int, repeats: int, scene_name: str = "gate", params=No
     """clustered_ptsv (default options unless ``options``): JAX against the two kernel
     forms; stage medians, whether lit masks and counters agreed."""
     import shadowlab as sl
-    from shadowlab.kernels import clustered_ptsv as kc
-    from shadowlab.scene.procedural import default_view
+    from . import clustered_ptsv as kc
+    from ..scene.procedural import default_view
 
     params = params or {}
     options = dict(options or {})
@@ -128,7 +128,7 @@ def bench_clustered(size: int, repeats: int, scene_name: str = "gate", params=No
 
 def bench_sun_disk(size: int, repeats: int, triangles: int = 8, grid: str = "16x16",
                    projection: str = "paper") -> dict:
-    from shadowlab.kernels import sun_disk as ks
+    from . import sun_disk as ks
 
     f = size * size
     rng = np.random.default_rng(0)
@@ -163,8 +163,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--only", nargs="+", choices=("psv", "clustered", "sun_disk"),
                     default=["psv", "clustered", "sun_disk"])
     a = ap.parse_args(argv)
-    from shadowlab.jaxcache import enable_compilation_cache
-    from shadowlab.kernels.runtime import init
+    from ..core.jaxcache import enable_compilation_cache
+    from .runtime import init
 
     enable_compilation_cache()
     init()

@@ -870,7 +870,7 @@ def build_hierarchy(tree, table: np.ndarray, keys: np.ndarray, coords: np.ndarra
                     fma: bool | None = None, device: str | None = None) -> Hierarchy:
     """Masks (phase 0), compact pointers (a scan per level), boxes and smin (phase 1),
     padding. ``form``: "lanes" (32-lane blocks per tile) or "warp" (a thread per tile)."""
-    from ..methods.cluster_hierarchy import pad_fraction
+    from ..structures.cluster_hierarchy import pad_fraction
 
     dev = init(device)
     if fma is None:
@@ -941,7 +941,7 @@ def implicit_tables(tree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     import jax.numpy as jnp
 
     from ..geometry.morton import encode
-    from ..methods import cluster_hierarchy as ch
+    from ..structures import cluster_hierarchy as ch
 
     d = tree.levels
     los, his, sizes = [], [], []
@@ -968,7 +968,7 @@ def _sample_stage(tree):
     functions) for a tree layout: the build's inputs, computed by JAX."""
     import jax
 
-    from ..methods import cluster_hierarchy as ch
+    from ..structures import cluster_hierarchy as ch
 
     @jax.jit
     def stage(pos, view, px, py):
@@ -985,9 +985,9 @@ def prepare(scene, gbuf, light, o: dict, device: str | None = None) -> dict:
     """
     import jax.numpy as jnp
 
-    from ..methods import cluster_hierarchy as ch
+    from ..structures import cluster_hierarchy as ch
     from ..methods import clustered_ptsv as cm
-    from ..methods.common import bias_terms, cap_bias, view_samples
+    from ..core.frame import bias_terms, cap_bias, view_samples
     from ..scene.view import hard_light
 
     f32 = np.float32
@@ -1162,10 +1162,10 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     cluster keys, the build's inputs), ``setup`` (setup kernel, bias terms, casters),
     ``build``, ``traverse`` (both passes), ``merge`` (seconds; compile excluded: the
     module is loaded first)."""
-    from ..methods import cluster_hierarchy as ch
+    from ..structures import cluster_hierarchy as ch
     from ..methods.clustered_ptsv import top_jobs
     from ..methods.registry import resolve_options
-    from ..methods.result import ShadowResult
+    from ..core.result import ShadowResult
 
     o = resolve_options("clustered_ptsv", options)
     if o["precision"] != "float32":

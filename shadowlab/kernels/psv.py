@@ -1,7 +1,7 @@
 """PSV kernels: TOP-tree insertion (a thread per triangle, compare-and-swap on links)
 and the PSV, D-PSV, D-Stackless and D-Hybrid queries (a thread per pixel, local stack).
 
-The same tree layout and the same tests as ``shadowlab.methods.top_tree`` and
+The same tree layout and the same tests as ``shadowlab.structures.top_tree`` and
 ``shadowlab.methods.psv`` (docs/psv.md): shadow volume ``r`` owns nodes ``4r..4r+3``,
 the negative child of node ``i`` is ``i + 1``, ``pos``/``inter`` hold the positive and
 intersection links. See docs/kernels.md for the execution model and for which
@@ -384,7 +384,7 @@ def build_tree(inp, wedge: str = "conservative", schedule: str = "threads",
         default order it is the serial schedule; the tree then equals
         ``top_tree.build_sequential`` and ``build_parallel`` node for node.
     """
-    from ..methods import top_tree as tt
+    from ..structures import top_tree as tt
 
     dev = init(device)
     if inp.planes.dtype != np.float32:
@@ -469,8 +469,8 @@ def prepare(scene, gbuf, light, options: dict):
     insertion order), so the kernel build sees the JAX build's ``BuildInput``.
     """
     from ..methods import psv as psvm
-    from ..methods import top_tree as tt
-    from ..methods.common import view_samples
+    from ..structures import top_tree as tt
+    from ..core.frame import view_samples
     from ..scene.view import hard_light
 
     samples = view_samples(gbuf, light)
@@ -497,7 +497,7 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
     import time
 
     from ..methods.registry import resolve_options
-    from ..methods.result import ShadowResult
+    from ..core.result import ShadowResult
 
     if method not in METHODS:
         raise ValueError(f"unknown PSV method {method!r}; allowed: {', '.join(METHODS)}")

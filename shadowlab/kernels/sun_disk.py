@@ -6,7 +6,7 @@ the part below the receiver's horizon), and for each of its triangles builds the
 triangle's edge functions in disk space, computes on every scanline the cells outside
 each edge with one division per edge and one logical shift, ORs them and ANDs the
 result into the grid. Visibility = set bits / disk bits. The arithmetic is that of
-``shadowlab.methods.sun_disk`` (``project_paper`` / ``triangle_edges_2d`` or
+``shadowlab.structures.sun_disk`` (``project_paper`` / ``triangle_edges_2d`` or
 ``homogeneous_edges``, ``horizon_edge``, ``edge_outside_rows``, ``polygon_keep_rows``,
 ``pack_rows``, ``visibility``), which rounds every value deciding a bit in a fixed way
 (opaque products, ordered sums, true divisions, negations for orientation). This file
@@ -253,7 +253,7 @@ def visibility(d, s, n, *, grid: str = "16x16", projection: str = "paper",
         dict: ``words`` uint32 [F, W], ``visibility`` float32 [F], ``rasterized`` int32
         [F] (triangles drawn: active and non-degenerate).
     """
-    from ..methods import sun_disk as sd
+    from ..structures import sun_disk as sd
 
     dev = init(device)
     g = sd.grid(grid)
@@ -314,7 +314,7 @@ def _jax_rasterizer(grid, projection, eps, sphere, horizon):
     import jax.numpy as jnp
 
     from ..core.numerics import opaque_zero
-    from ..methods import sun_disk as sd
+    from ..structures import sun_disk as sd
 
     g = sd.grid(grid)
 

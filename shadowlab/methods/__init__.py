@@ -8,7 +8,7 @@ from .interface import DEFAULT_SHADOW_EPS, MethodKind
 from .registry import (MethodError, MethodInfo, Option, available, check_light,
                        compute_shadows, get, light_problem, names, register, register_kernel,
                        resolve_options)
-from .result import ShadowResult
+from ..core.result import ShadowResult
 
 __all__ = ["DEFAULT_SHADOW_EPS", "MethodError", "MethodInfo", "MethodKind", "Option",
            "ShadowResult", "available", "check_light", "compute_shadows", "get",

@@ -21,10 +21,10 @@ import numpy as np
 from ..core.capacity import bucket, pad
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.view import hard_light
-from ..timing import StageTimer
-from .common import BIAS_MODES, bias_terms, cap_bias, precision_mode, view_samples
+from ..core.timing import StageTimer
+from ..core.frame import BIAS_MODES, bias_terms, cap_bias, precision_mode, view_samples
 from .registry import Option, register
-from .result import ShadowResult
+from ..core.result import ShadowResult
 
 
 @functools.lru_cache(maxsize=None)

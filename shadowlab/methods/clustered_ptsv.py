@@ -49,11 +49,11 @@ import numpy as np
 from ..engines.traversal import traverse
 from ..geometry.morton import decode
 from ..scene.view import hard_light
-from ..timing import StageTimer
-from . import cluster_hierarchy as ch
+from ..core.timing import StageTimer
+from ..structures import cluster_hierarchy as ch
 from ..core.capacity import pad
 from ..geometry.triangle_setup import shadow_volume_planes as world_setup
-from .common import (
+from ..core.frame import (
     BIAS_MODES,
     bucket,
     caster_terms,
@@ -61,8 +61,8 @@ from .common import (
     view_samples,
 )
 from .registry import Option, register
-from .result import ShadowResult
-from .volume_planes import _MARGIN_ULPS, post_perspective_planes
+from ..core.result import ShadowResult
+from ..geometry.volume_planes import _MARGIN_ULPS, post_perspective_planes
 
 TOP_JOBS = 1024
 

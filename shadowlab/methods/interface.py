@@ -8,7 +8,7 @@ A method is a function ``fn(scene, gbuf, light, **options) -> ShadowResult`` plu
   error, e.g. a shadow map), or ``soft`` (visibility in [0, 1] for an area light);
 - ``options``: ``{name: Option}``; the registry turns them into one pydantic model
   (``MethodInfo.model``) that validates, fills defaults and refuses unknown names;
-- ``counters``: the names (from ``shadowlab.counters.COUNTERS``) every result carries;
+- ``counters``: the names (from ``shadowlab.core.counters.COUNTERS``) every result carries;
 - ``stages``: the names of the timing stages the method may report (seconds).
 
 The registry (``registry.py``) owns what every method would otherwise repeat:
@@ -27,7 +27,7 @@ import pydantic
 # The cap-plane bias as a fraction of the scene diagonal has one default, the Embree
 # reference's (``raycast.DEFAULT_SHADOW_EPS``): every method's ``shadow_eps`` option, the
 # run config's ``reference.shadow_eps`` and the boundary analysis use it.
-from ..raycast import DEFAULT_SHADOW_EPS
+from ..reference.raycast import DEFAULT_SHADOW_EPS
 from ..scene.view import DirectionalLight, PointLight, SphereLight
 
 

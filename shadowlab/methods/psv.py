@@ -26,11 +26,11 @@ import numpy as np
 from ..core.capacity import bucket, pad
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.view import hard_light
-from ..timing import StageTimer
-from . import top_tree as tt
-from .common import BIAS_MODES, bias_terms, cap_bias, precision_mode, view_samples
+from ..core.timing import StageTimer
+from ..structures import top_tree as tt
+from ..core.frame import BIAS_MODES, bias_terms, cap_bias, precision_mode, view_samples
 from .registry import Option, register
-from .result import ShadowResult
+from ..core.result import ShadowResult
 
 QUERIES = ("stack", "stackless", "hybrid")
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable
 
-from ..counters import check as check_counters
+from ..core.counters import check as check_counters
 from .interface import (DEFAULT_SHADOW_EPS, MethodError, MethodInfo, MethodKind, Option,
                         OptionsModel)
 
@@ -36,7 +36,7 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
     """Decorator that adds a method to the registry.
 
     ``kind`` defaults from the older flags: ``soft`` -> soft, else ``exact`` -> exact,
-    else approximate. ``counters`` (names from ``shadowlab.counters.COUNTERS``) and
+    else approximate. ``counters`` (names from ``shadowlab.core.counters.COUNTERS``) and
     ``stages`` are checked on every result.
     """
     if kind is None:

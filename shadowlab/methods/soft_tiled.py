@@ -56,7 +56,7 @@ import numpy as np
 
 from ..core.numerics import opaque_zero
 from ..geometry.morton import encode, round_robin_layout
-from ..raycast import shadow_epsilon
+from ..reference.raycast import shadow_epsilon
 from ..scene.view import SphereLight
 from ..structures.cones import blocker_cones, cones_in_frustum, pad_cones
 from ..structures.tile_lists import (
@@ -67,12 +67,12 @@ from ..structures.tile_lists import (
     tile_bounds,
     tile_layout,
 )
-from ..timing import StageTimer
-from . import sun_disk as sd
+from ..core.timing import StageTimer
+from ..structures import sun_disk as sd
 from ..core.capacity import bucket
-from .common import precision_mode
+from ..core.frame import precision_mode
 from .registry import Option, register
-from .result import ShadowResult
+from ..core.result import ShadowResult
 
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
 DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)

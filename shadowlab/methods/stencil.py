@@ -30,13 +30,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..scene.view import hard_light
-from ..timing import StageTimer
+from ..core.timing import StageTimer
 from ..core.capacity import pad
 from ..geometry.triangle_setup import shadow_volume_planes as setup
 from ..core.capacity import bucket
-from .common import BIAS_MODES, caster_terms, precision_mode, view_samples
+from ..core.frame import BIAS_MODES, caster_terms, precision_mode, view_samples
 from .registry import Option, register
-from .result import ShadowResult
+from ..core.result import ShadowResult
 
 
 @functools.lru_cache(maxsize=None)

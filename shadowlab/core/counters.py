@@ -117,7 +117,7 @@ def check(counters: dict) -> None:
     """Raise KeyError for a counter name that is not in the table."""
     unknown = sorted(set(counters) - set(COUNTERS))
     if unknown:
-        raise KeyError(f"counters not in shadowlab.counters.COUNTERS: {unknown}")
+        raise KeyError(f"counters not in shadowlab.core.counters.COUNTERS: {unknown}")
 
 
 def markdown_table() -> str:
@@ -128,9 +128,9 @@ def markdown_table() -> str:
 
 
 if __name__ == "__main__":
-    # python -m shadowlab.counters > docs/counters.md
+    # python -m shadowlab.core.counters > docs/counters.md
     print("# Counters\n")
     print("Every method and reference kernel reports counters by these names "
           "(`shadowlab/counters.py` is the source; regenerate this file with "
-          "`python -m shadowlab.counters > docs/counters.md`).\n")
+          "`python -m shadowlab.core.counters > docs/counters.md`).\n")
     print(markdown_table())

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io
-from .harness.evaluate import DEFAULT_REPEATS, EXPLAIN_LIMIT, References, evaluate
-from .methods import MethodError, light_problem
-from .raycast import render_gbuffer
+from ..core import io
+from .evaluate import DEFAULT_REPEATS, EXPLAIN_LIMIT, References, evaluate
+from ..methods import MethodError, light_problem
+from ..reference.raycast import render_gbuffer
 
 __all__ = ["EXPLAIN_LIMIT", "RunOutput", "format_table", "run", "runnable_methods"]
 
@@ -150,7 +150,7 @@ def run(config, out_dir: str | Path | None = None, progress: bool = True,
 
 
 def _figures(arrays: dict, methods: list[str], folder: Path) -> list[Path]:
-    from .analysis import plots
+    from ..analysis import plots
 
     files = []
     valid = arrays["valid"]

@@ -27,8 +27,8 @@ import weakref
 
 import numpy as np
 
-from .scene.mesh import Scene
-from .scene.view import Camera, Light, PointLight, SphereLight, hard_light
+from ..scene.mesh import Scene
+from ..scene.view import Camera, Light, PointLight, SphereLight, hard_light
 
 DEFAULT_SHADOW_EPS = 1e-5
 _THREADS = 2          # embreex releases the GIL during a query: split rays over cores

@@ -14,7 +14,7 @@ class ShadowResult:
     Attributes:
         lit: bool [H, W] (True = lit) for hard-shadow methods, or float [H, W] visibility
             in [0, 1] for soft-shadow methods.
-        counters: names from ``shadowlab.counters.COUNTERS``; ints, floats, or int arrays
+        counters: names from ``shadowlab.core.counters.COUNTERS``; ints, floats, or int arrays
             [H, W] for ``*_per_pixel`` maps.
         timings: seconds per stage; ``<stage>_compile`` is compile time kept apart;
             ``total`` is the sum of run times, compile excluded.

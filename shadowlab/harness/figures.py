@@ -26,9 +26,9 @@ import time
 import traceback
 from pathlib import Path
 
-from . import io
-from .config.errors import ConfigError
-from .config.experiments import load_experiment_file
+from ..core import io
+from ..config.errors import ConfigError
+from ..config.experiments import load_experiment_file
 
 
 class ExperimentError(ValueError):
@@ -61,9 +61,9 @@ def measure_claims(module, arrays: dict, cfg: dict) -> list[dict]:
 def scene_view(cfg: dict, default_scene: str = "terrain"):
     """The procedural scene of an experiment config (``scene``, ``params``), its default
     view and the G-buffer at ``cfg["resolution"]``: (scene, view, gbuf)."""
-    from .raycast import render_gbuffer
-    from .scene import load_scene
-    from .scene.procedural import default_view
+    from ..reference.raycast import render_gbuffer
+    from ..scene import load_scene
+    from ..scene.procedural import default_view
 
     name = cfg.get("scene", default_scene)
     params = dict(cfg.get("params", {}))

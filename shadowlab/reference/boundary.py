@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..raycast import DEFAULT_SHADOW_EPS, GBuffer, shadow_epsilon
+from .raycast import DEFAULT_SHADOW_EPS, GBuffer, shadow_epsilon
 from ..scene.mesh import Scene
 from ..scene.view import Light, hard_light
 

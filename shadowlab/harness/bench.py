@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io
-from .analysis import compare_soft
-from .harness.evaluate import References, evaluate
-from .methods import MethodKind, get, light_problem
-from .raycast import render_gbuffer, soft_reference
+from ..core import io
+from ..analysis import compare_soft
+from .evaluate import References, evaluate
+from ..methods import MethodKind, get, light_problem
+from ..reference.raycast import render_gbuffer, soft_reference
 
 # Rays per pixel of the Embree soft reference's run-time-vs-error curve.
 SOFT_CURVE_RAYS = (4, 16, 64)

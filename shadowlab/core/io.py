@@ -78,7 +78,7 @@ def provenance() -> dict:
     import jax
     import trimesh
 
-    from . import __version__
+    from .. import __version__
 
     commit = None
     with contextlib.suppress(Exception):

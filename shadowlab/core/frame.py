@@ -8,8 +8,8 @@ import dataclasses
 import jax
 import numpy as np
 
-from ..core.capacity import bucket, pad
-from ..raycast import GBuffer, facing_samples, shadow_epsilon
+from .capacity import bucket, pad
+from ..reference.raycast import GBuffer, facing_samples, shadow_epsilon
 from ..scene.mesh import Scene
 from ..scene.view import Light
 
@@ -78,7 +78,7 @@ def bias_terms(samples: Samples, light_h: np.ndarray, planes: np.ndarray, eps: f
 
     - ``mode="receiver"``: the segment from p to the light must cross the caster more
       than ``eps`` above p's tangent plane, the same criterion the Embree reference
-      uses (see ``shadowlab.raycast``). With a = n . (L.xyz - L.w p) and
+      uses (see ``shadowlab.reference.raycast``). With a = n . (L.xyz - L.w p) and
       capL = cap(L) (homogeneous), the crossing height exceeds eps when
       ``-cap(p) * a > eps * (capL - L.w * cap(p))``, i.e.
       ``cap(p) * (a - eps * L.w) < -eps * capL``.
