@@ -40,14 +40,19 @@ def test_an_interrupted_write_leaves_no_entry(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []  # and no temporary file left behind
 
 
-def test_the_session_compiles_into_its_own_cache():
-    """conftest points JAX at the session's folder, never at the user's cache."""
-    d = Path(jax.config.jax_compilation_cache_dir)
-    assert d == Path(os.environ["SHADOWLAB_JAX_CACHE"])
-    if not os.environ.get("SHADOWLAB_TEST_CACHE"):
-        assert Path.home() / ".cache" / "shadowlab" not in [d, *d.parents]
+def test_the_session_never_touches_the_users_cache(tmp_path):
+    """conftest turns the persistent cache off (or, opted in, points it at the test
+    folder); a later enable call, as ``shadowlab.cli.main`` makes, changes nothing."""
+    if os.environ.get("SHADOWLAB_TEST_CACHE"):
+        assert Path(jax.config.jax_compilation_cache_dir) == Path(os.environ["SHADOWLAB_JAX_CACHE"])
+        return
+    assert not jax.config.jax_enable_compilation_cache
+    jaxcache.enable_compilation_cache(tmp_path / "jax")
+    assert not jax.config.jax_enable_compilation_cache
     jax.jit(lambda x: x * 3.25 + 17.0)(jnp.arange(13.0)).block_until_ready()
-    assert any(p.name.endswith(jaxcache._SUFFIX) for p in d.iterdir())
+    assert not (tmp_path / "jax").exists()
+    user = Path.home() / ".cache" / "shadowlab" / "jax"
+    assert Path(os.environ["SHADOWLAB_JAX_CACHE"]) != user
 
 
 def test_compiled_keeps_only_the_most_recent_executables(monkeypatch):
