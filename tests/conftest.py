@@ -1,11 +1,11 @@
 """Test-session set-up: one pytest process runs the whole suite.
 
-Compilation caches are hermetic: JAX's persistent cache is off (in-memory caches only),
-and Warp's kernel cache lives in a fresh temporary folder removed at the end, so the
-tests never read or write the user's caches (``~/.cache/shadowlab``) and every session
-starts cold.
+Compilation caches are hermetic: every session gets a fresh temporary folder for JAX's
+persistent cache and Warp's kernel cache and removes it at the end, so the tests never
+read or write the user's caches (``~/.cache/shadowlab``) and every session starts cold.
 To keep a warm cache between sessions while iterating, point ``SHADOWLAB_TEST_CACHE`` at
-a folder of your own (it is used for tests only and never removed).
+a folder of your own (it is used for tests only and never removed). Live executables are
+bounded before every test (``shadowlab.core.executables``; docs/xla_map_count.md).
 """
 
 import os
@@ -21,16 +21,10 @@ CACHE_ROOT = Path(_KEEP) if _KEEP else Path(tempfile.mkdtemp(prefix="shadowlab-t
 os.environ["SHADOWLAB_JAX_CACHE"] = str(CACHE_ROOT / "jax")
 os.environ["SHADOWLAB_WARP_CACHE"] = str(CACHE_ROOT / "warp")
 
-from shadowlab.core.jaxcache import disable_compilation_cache, enable_compilation_cache  # noqa: E402
+from shadowlab.core import executables  # noqa: E402
+from shadowlab.core.jaxcache import enable_compilation_cache  # noqa: E402
 
-# No persistent JAX cache in a plain test session: nothing would survive the session,
-# and XLA:CPU's executable serialization, which the cache writer calls, has segfaulted
-# late in a one-process run of the suite (see shadowlab.core.jaxcache). Opting in with
-# SHADOWLAB_TEST_CACHE keeps a warm cache at that risk.
-if _KEEP:
-    enable_compilation_cache(CACHE_ROOT / "jax")
-else:
-    disable_compilation_cache()
+enable_compilation_cache(CACHE_ROOT / "jax")
 
 
 def pytest_unconfigure(config):
@@ -64,3 +58,12 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.kernels)
         elif item.module.__name__ in SOFT:
             item.add_marker(pytest.mark.soft)
+
+
+@pytest.fixture(autouse=True)
+def _bounded_executables():
+    """Keep the process under the OS's cap on mapped regions: XLA:CPU maps ~28 regions
+    per live executable and segfaults at ``vm.max_map_count``, which the whole suite in
+    one process would otherwise reach (``shadowlab.core.executables``)."""
+    executables.guard()
+    yield

@@ -41,18 +41,16 @@ def test_an_interrupted_write_leaves_no_entry(tmp_path, monkeypatch):
 
 
 def test_the_session_never_touches_the_users_cache(tmp_path):
-    """conftest turns the persistent cache off (or, opted in, points it at the test
-    folder); a later enable call, as ``shadowlab.cli.main`` makes, changes nothing."""
-    if os.environ.get("SHADOWLAB_TEST_CACHE"):
-        assert Path(jax.config.jax_compilation_cache_dir) == Path(os.environ["SHADOWLAB_JAX_CACHE"])
-        return
-    assert not jax.config.jax_enable_compilation_cache
+    """conftest points the persistent cache at the session's own folder; a later enable
+    call, as ``shadowlab.cli.main`` makes, does not move it to the user's cache."""
+    session = Path(os.environ["SHADOWLAB_JAX_CACHE"])
+    assert Path(jax.config.jax_compilation_cache_dir) == session
     jaxcache.enable_compilation_cache(tmp_path / "jax")
-    assert not jax.config.jax_enable_compilation_cache
+    assert Path(jax.config.jax_compilation_cache_dir) == session
     jax.jit(lambda x: x * 3.25 + 17.0)(jnp.arange(13.0)).block_until_ready()
     assert not (tmp_path / "jax").exists()
     user = Path.home() / ".cache" / "shadowlab" / "jax"
-    assert Path(os.environ["SHADOWLAB_JAX_CACHE"]) != user
+    assert session != user
 
 
 def test_compiled_keeps_only_the_most_recent_executables(monkeypatch):

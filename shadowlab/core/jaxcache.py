@@ -65,32 +65,12 @@ def _make_writes_atomic() -> bool:
 
 
 _SUFFIX = "-cache"
-_DISABLED = False
-
-
-def disable_compilation_cache() -> None:
-    """Turn JAX's persistent cache off for this process; later
-    :func:`enable_compilation_cache` calls do nothing.
-
-    The test session uses this. A long process that compiles many programs (the whole
-    test suite in one process) has segfaulted inside XLA:CPU's ``executable.serialize()``,
-    called by JAX's cache writer (``compilation_cache.put_executable_and_time``): in
-    ``test_psv.py`` and, in earlier sessions, in ``test_soft_tiled.py``, each time only
-    after hundreds of earlier compilations. Without a persistent cache nothing is
-    serialized; a test session's cache was thrown away at its end anyway."""
-    global _DISABLED
-    _DISABLED = True
-    jax.config.update("jax_enable_compilation_cache", False)
-
-
 def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
     """Point JAX's persistent cache at ``path`` (default ``$SHADOWLAB_JAX_CACHE`` or
     ``~/.cache/shadowlab/jax``) and cache every compiled program, however fast."""
     global _ENABLED
     target = Path(path or os.environ.get("SHADOWLAB_JAX_CACHE")
                   or Path.home() / ".cache" / "shadowlab" / "jax")
-    if _DISABLED:
-        return target
     if not _ENABLED:
         target.mkdir(parents=True, exist_ok=True)
         _make_writes_atomic()

@@ -46,6 +46,11 @@ def compiled(fn, *args):
     return exe, dt
 
 
+def clear_compiled() -> None:
+    """Forget every executable :func:`compiled` holds (see ``core.executables``)."""
+    _COMPILED.clear()
+
+
 class StageTimer:
     """Collects ``{stage: seconds}`` and ``{stage + "_compile": seconds}``."""
 

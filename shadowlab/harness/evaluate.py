@@ -25,6 +25,7 @@ from typing import Callable
 import numpy as np
 
 from ..analysis import compare_hard, compare_soft
+from ..core import executables
 from ..reference.boundary import unexplained_count
 from ..methods.interface import DEFAULT_SHADOW_EPS, MethodKind
 from ..methods.registry import compute_shadows, get
@@ -190,6 +191,7 @@ def evaluate(scene, gbuf, light, method: str, options: dict | None = None,
         refs = References(scene, gbuf, light, shadow_eps=eps, **given)
     options.setdefault("shadow_eps", refs.shadow_eps)
     info.resolve_options(options)              # refuse bad options before any work
+    executables.guard()                        # before the warm-up, never between warm calls
     calls = []
     result = None
     for _ in range(max(warmup, 0 if repeats else 1)):
