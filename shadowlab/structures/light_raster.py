@@ -331,3 +331,39 @@ def rounding_margin(dtype, points: np.ndarray, texel_world: float) -> float:
     at the points)."""
     scale = float(np.abs(np.asarray(points, dtype=np.float64)).max(initial=1.0))
     return 64.0 * float(np.finfo(dtype).eps) * scale / max(texel_world, 1e-300)
+
+
+def project_points(camera: LightCamera, points: np.ndarray):
+    """Light-space coordinates of world ``points`` [N, 3] (float64).
+
+    Returns:
+        face int32 [N], uv float64 [N, 2] (texel coordinates), key int64 [N] (the
+        texel, :func:`texel_keys`), delta float64 [N] (the face's depth convention).
+    """
+    face, uv, depth = camera.to_texels(points)
+    delta = np.empty(len(face))
+    for f in np.unique(face):
+        sel = face == f
+        delta[sel] = face_depth(camera.faces[f], depth[sel])
+    return face, uv, texel_keys(face, uv, camera.resolution[0]), delta
+
+
+def texel_world_size(camera: LightCamera, points: np.ndarray) -> np.ndarray:
+    """float64 [N]: world size of one texel at ``points`` [N, 3] (the texel side times
+    the depth on perspective faces)."""
+    face, _, depth = camera.to_texels(points)
+    size = np.array([f.texel_size for f in camera.faces])[face]
+    return size if camera.kind == "orthographic" else size * depth
+
+
+def fragment_arrays(setups: list[FaceSetup], tri: np.ndarray, key: np.ndarray, resolution: int,
+                    dtype=np.float64):
+    """Per-fragment edges [F, 3, 3], norms [F, 3], depth planes [F, 3] (``dtype``), and
+    column, row int64 [F] of fragments (triangle ``tri``, texel ``key``)."""
+    r = int(resolution)
+    face = key // (r * r)
+    pick = (face, tri)
+    edges = np.stack([s.edges for s in setups])[pick].astype(dtype)
+    norms = np.stack([s.norms for s in setups])[pick].astype(dtype)
+    depth = np.stack([s.depth for s in setups])[pick].astype(dtype)
+    return edges, norms, depth, key % r, (key // r) % r
