@@ -25,6 +25,7 @@ from ..core.timing import StageTimer
 from ..scene.light_camera import box_corners, fit_light_camera
 from ..scene.view import DirectionalLight, hard_light
 from ..structures import light_raster as lr
+from .interface import MethodError
 from .registry import Option, register
 
 RESOLUTIONS = (512, 1024, 2048, 4096, 8192)
@@ -38,8 +39,12 @@ def fit_camera(scene, samples, light, resolution: int, projection: str):
     ``projection`` applies to point lights; a directional light is orthographic."""
     light = hard_light(light)
     proj = "auto" if isinstance(light, DirectionalLight) else projection
-    return fit_light_camera(light, samples.position, casters=box_corners(scene.bounds),
-                            resolution=resolution, projection=proj)
+    try:
+        return fit_light_camera(light, samples.position, casters=box_corners(scene.bounds),
+                                resolution=resolution, projection=proj)
+    except ValueError as err:
+        raise MethodError(f"option projection={projection!r}: {err}; allowed: "
+                          f"{', '.join(PROJECTIONS)} ('auto' picks a cube)") from err
 
 
 @register("shadow_map", doc="shadow map from the light (depth map at texel centres, bias "
