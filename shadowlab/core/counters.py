@@ -116,6 +116,8 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
             "centre the triangle covers, over the texels read"),
     Counter("list_nodes", "int", "IZB: samples inserted in texel lists"),
     Counter("list_length_max", "int", "IZB: longest texel list"),
+    Counter("list_length_per_pixel", "map", "IZB: length of the list of the pixel's texel (0 "
+            "for samples not inserted)"),
     Counter("list_nonempty_texels", "int", "IZB: texels with a non-empty list"),
     Counter("traced_fragments", "int", "IZB: triangle x texel pairs traced (outer-conservative "
             "fragments on non-empty texels that the depth buffer did not cull)"),

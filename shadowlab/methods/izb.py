@@ -108,6 +108,7 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
           paper="Wyman et al. 2015/2016 (IZB); Tokuyoshi & Mizokuchi 2018 (CSM prepass)",
           counters=("samples", "casters", "culled_triangles", "tests", "tests_per_pixel",
                     "shadowed", "lit", "light_faces", "list_nodes", "list_length_max",
+                    "list_length_per_pixel",
                     "list_nonempty_texels", "traced_fragments", "depth_culled_fragments",
                     "csm_texels", "csm_culled", "csm_culled_per_pixel", "csm_false_shadows"),
           stages=("samples", "setup", "light_setup", "csm", "build", "trace", "verify"),
@@ -228,12 +229,15 @@ def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, proje
     lit_values = ~shadow
     lit = samples.scatter(lit_values, fill=False)
     tests_per = np.bincount(pair_node, minlength=s_count)
+    length_per = np.zeros(s_count, np.int64)
+    length_per[order] = np.repeat(llen, llen)
     counters.update({
         "tests": int(len(pair_node)),
         "tests_per_pixel": samples.scatter(tests_per.astype(np.int64), fill=0),
         "shadowed": int(shadow.sum()), "lit": int(lit.sum()),
         "light_faces": len(cam.faces), "list_nodes": int(len(order)),
         "list_length_max": int(llen.max(initial=0)),
+        "list_length_per_pixel": samples.scatter(length_per, fill=0),
         "list_nonempty_texels": int(len(lkeys)),
         "traced_fragments": int(traced.sum()), "depth_culled_fragments": depth_culled,
         "csm_texels": int(csm_texels), "csm_culled": int(culled.sum()),
@@ -246,6 +250,7 @@ def _empty_counters(shape) -> dict:
     zero_map = np.zeros(shape, np.int64)
     return {"tests": 0, "tests_per_pixel": zero_map, "shadowed": 0, "lit": 0,
             "light_faces": 0, "list_nodes": 0, "list_length_max": 0,
+            "list_length_per_pixel": zero_map.copy(),
             "list_nonempty_texels": 0, "traced_fragments": 0, "depth_culled_fragments": 0,
             "csm_texels": 0, "csm_culled": 0, "csm_culled_per_pixel": zero_map.copy(),
             "csm_false_shadows": 0}
