@@ -30,7 +30,7 @@ cull). ``verify`` re-tests every culled sample against every caster (counter
 
 from __future__ import annotations
 
-import functools
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -137,6 +137,16 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
           })
 def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, projection,
         coverage, csm_depth, coverage_margin, verify, bias):
+    return run_frame(scene, gbuf, light, ENGINE, precision=precision, shadow_eps=shadow_eps,
+                     prepass=prepass, resolution=resolution, projection=projection,
+                     coverage=coverage, csm_depth=csm_depth, coverage_margin=coverage_margin,
+                     verify=verify, bias=bias)
+
+
+def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, resolution,
+              projection, coverage, csm_depth, coverage_margin, verify, bias):
+    """One ``izb`` frame with the list build and tracing of ``engine`` (the JAX one,
+    :data:`ENGINE`, or the Warp kernels' ``shadowlab.kernels.izb.ENGINE``)."""
     if prepass == "csm" and bias != "receiver":
         raise MethodError("method 'izb': option prepass='csm' needs bias='receiver' (the "
                           "prepass bounds the receiver-biased point); got bias='cap'")
@@ -187,14 +197,9 @@ def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, proje
                                           cap_bias(scene, shadow_eps))
 
         with timer.stage("build"):
-            nodes = np.flatnonzero(~culled)
-            order = nodes[np.argsort(key[nodes], kind="stable")]
-            lkeys, lstart, llen = np.unique(key[order], return_index=True, return_counts=True)
-            maxd = np.full(len(lkeys), -np.inf)
-            np.maximum.at(maxd, np.repeat(np.arange(len(lkeys)), llen), delta_p[order])
-            # the margin of the farthest node, to widen its depth
-            maxm = np.zeros(len(lkeys))
-            np.maximum.at(maxm, np.repeat(np.arange(len(lkeys)), llen), m_delta[order])
+            lkeys = np.unique(key[~culled])
+            slot = np.where(culled, -1, np.searchsorted(lkeys, key))
+            lists = engine.build(slot, delta_p, m_delta, len(lkeys))
 
         with timer.stage("trace"):
             select = [ok_tri & s.ok for s in setups]
@@ -203,21 +208,19 @@ def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, proje
             edges, norms, dplane, col, row = lr.fragment_arrays(setups, ftri, fkey, r)
             over = lr.coverage(edges, norms, col, row, "outer", tau=tau)
             lo, _, _ = lr.depth_range(dplane, col, row)
-            near_enough = lo < maxd[fslot] + maxm[fslot]
-            traced = over & near_enough
-            depth_culled = int((over & ~near_enough).sum())
-            ttri, tslot = ftri[traced], fslot[traced]
-            owner, pos = expand(llen[tslot], lstart[tslot])
-            pair_node, pair_tri = order[pos], ttri[owner]
+            shadow, tests_per, traced, depth_culled = engine.trace(
+                ftri[over], fslot[over], lo[over], lists, points, scale_j, planes, bound_j,
+                s_count)
             # valid casters with a light-space determinant of exactly 0 on a face: test
-            # them against every node of that face
-            for f, s in enumerate(setups):
-                odd = np.flatnonzero(ok_tri & (s.absdet == 0) & np.any(s.vertex_w > 0, axis=1))
-                if len(odd):
-                    fn = order[face[order] == f]
-                    pair_node = np.concatenate([pair_node, np.tile(fn, len(odd))])
-                    pair_tri = np.concatenate([pair_tri, np.repeat(odd, len(fn))])
-            shadow = pair_shadows(points, scale_j, planes, bound_j, pair_node, pair_tri)[:s_count]
+            # them against every node of that face (nothing rasterizes them)
+            order = lists.order
+            for f, st in enumerate(setups):
+                odd = np.flatnonzero(ok_tri & (st.absdet == 0) & np.any(st.vertex_w > 0, axis=1))
+                fn = order[face[order] == f]
+                if len(odd) and len(fn):
+                    pn, pt = np.tile(fn, len(odd)), np.repeat(odd, len(fn))
+                    shadow |= pair_shadows(points, scale_j, planes, bound_j, pn, pt)[:s_count]
+                    tests_per += np.bincount(pn, minlength=s_count)
             shadow |= culled
 
         false_shadows = -1
@@ -228,22 +231,79 @@ def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, proje
 
     lit_values = ~shadow
     lit = samples.scatter(lit_values, fill=False)
-    tests_per = np.bincount(pair_node, minlength=s_count)
+    llen = lists.length
     length_per = np.zeros(s_count, np.int64)
     length_per[order] = np.repeat(llen, llen)
     counters.update({
-        "tests": int(len(pair_node)),
+        "tests": int(tests_per.sum()),
         "tests_per_pixel": samples.scatter(tests_per.astype(np.int64), fill=0),
         "shadowed": int(shadow.sum()), "lit": int(lit.sum()),
         "light_faces": len(cam.faces), "list_nodes": int(len(order)),
         "list_length_max": int(llen.max(initial=0)),
         "list_length_per_pixel": samples.scatter(length_per, fill=0),
         "list_nonempty_texels": int(len(lkeys)),
-        "traced_fragments": int(traced.sum()), "depth_culled_fragments": depth_culled,
+        "traced_fragments": int(traced), "depth_culled_fragments": int(depth_culled),
         "csm_texels": int(csm_texels), "csm_culled": int(culled.sum()),
         "csm_culled_per_pixel": samples.scatter(culled.astype(np.int64), fill=0),
         "csm_false_shadows": int(false_shadows)})
     return ShadowResult(lit, counters, dict(timer.times, total=timer.total))
+
+
+@dataclasses.dataclass(frozen=True)
+class Lists:
+    """Per-texel node lists (CSR over the non-empty texels).
+
+    Attributes:
+        order: int64 [N] sample indices, list by list, each list in sample order;
+        start, length: int64 [K] of each list; maxd: float64 [K] delta of the farthest
+        node; maxm: float64 [K] the largest depth margin of the list's nodes.
+    """
+
+    order: np.ndarray
+    start: np.ndarray
+    length: np.ndarray
+    maxd: np.ndarray
+    maxm: np.ndarray
+
+
+class JaxEngine:
+    """List build (a stable sort) and tracing (expanded (node, triangle) pairs tested by
+    the jitted pair kernel)."""
+
+    @staticmethod
+    def build(slot: np.ndarray, delta: np.ndarray, margin: np.ndarray, k: int) -> Lists:
+        """Lists of the samples with ``slot`` [S] >= 0 (their texel's list), ``delta`` [S]
+        and depth ``margin`` [S] (float64), ``k`` lists."""
+        nodes = np.flatnonzero(slot >= 0)
+        order = nodes[np.argsort(slot[nodes], kind="stable")]
+        length = np.bincount(slot[order], minlength=k).astype(np.int64)
+        start = np.cumsum(length) - length
+        owner = np.repeat(np.arange(k), length)
+        maxd = np.full(k, -np.inf)
+        np.maximum.at(maxd, owner, delta[order])
+        maxm = np.zeros(k)
+        np.maximum.at(maxm, owner, margin[order])
+        return Lists(order, start, length, maxd, maxm)
+
+    @staticmethod
+    def trace(tri, slot, lo, lists: Lists, points, scale, planes, bound, count):
+        """Fragments (triangle ``tri`` [F], list ``slot`` [F], smallest delta ``lo`` [F]):
+        depth culling against the farthest node, then every node of the list tested.
+
+        Returns:
+            shadow bool [count], tests per sample int64 [count], traced fragments,
+            depth-culled fragments.
+        """
+        keep = lo < lists.maxd[slot] + lists.maxm[slot]
+        ttri, tslot = tri[keep], slot[keep]
+        owner, pos = expand(lists.length[tslot], lists.start[tslot])
+        node, ptri = lists.order[pos], ttri[owner]
+        shadow = pair_shadows(points, scale, planes, bound, node, ptri)[:count]
+        return (shadow, np.bincount(node, minlength=count).astype(np.int64),
+                int(keep.sum()), int((~keep).sum()))
+
+
+ENGINE = JaxEngine()
 
 
 def _empty_counters(shape) -> dict:
