@@ -248,34 +248,35 @@ def coverage(edges, norms, col, row, mode: str, inner_test: str = "corners", tau
             least ``tau`` texels from every edge; ``inner_test`` "corners" or "circle"),
             "outer" (closed square within ``tau`` texels of every edge's inside).
         tau: margin in texels (scalar or [F]).
+
+    An edge function is affine, so its smallest and largest values over the square are
+    at corners: the centre value -+ (|a| + |b|) / 2 (one evaluation per edge).
     """
-    corners, centre = edge_values(edges, col, row, xp)
+    a, b = edges[..., 0], edges[..., 1]
+    u = col.astype(edges.dtype)[:, None] + 0.5
+    v = row.astype(edges.dtype)[:, None] + 0.5
+    centre = a * u + b * v + edges[..., 2]
     if mode == "standard":
-        a, b = edges[..., 0], edges[..., 1]
         top_left = (a > 0) | ((a == 0) & (b > 0))
         return xp.all((centre > 0) | ((centre == 0) & top_left), axis=-1)
     tau = xp.asarray(tau, dtype=edges.dtype)
     tau = tau[:, None] if tau.ndim == 1 else tau
+    half = 0.5 * (xp.abs(a) + xp.abs(b))
     if mode == "inner":
         if inner_test == "corners":
-            d = _distance(corners, norms[..., None], xp)
-            return xp.all(d >= tau[..., None], axis=(-1, -2))
-        d = _distance(centre, norms, xp)
-        return xp.all(d >= HALF_DIAGONAL + tau, axis=-1)
+            return xp.all(_distance(centre - half, norms, xp) >= tau, axis=-1)
+        return xp.all(_distance(centre, norms, xp) >= HALF_DIAGONAL + tau, axis=-1)
     if mode == "outer":
-        d = _distance(corners, norms[..., None], xp)
-        return xp.all(xp.max(d, axis=-1) >= -tau, axis=-1)
+        return xp.all(_distance(centre + half, norms, xp) >= -tau, axis=-1)
     raise ValueError(f"light raster mode must be one of {MODES}, got {mode!r}")
 
 
 def depth_range(depth, col, row, xp=np):
     """(min [F], max [F], centre [F]) of the depth plane [F, 3] over each texel square."""
-    u = col.astype(depth.dtype)
-    v = row.astype(depth.dtype)
-    a, b, c = depth[:, 0], depth[:, 1], depth[:, 2]
-    vals = xp.stack([a * (u + du) + b * (v + dv) + c for du, dv in CORNERS], axis=-1)
-    centre = a * (u + 0.5) + b * (v + 0.5) + c
-    return xp.min(vals, axis=-1), xp.max(vals, axis=-1), centre
+    a, b = depth[:, 0], depth[:, 1]
+    centre = a * (col.astype(depth.dtype) + 0.5) + b * (row.astype(depth.dtype) + 0.5) + depth[:, 2]
+    half = 0.5 * (xp.abs(a) + xp.abs(b))
+    return centre - half, centre + half, centre
 
 
 def program1_covered(edges, vertex_w, absdet, col, row, xp=np):
