@@ -14,7 +14,8 @@ the CSM prepass and the fragment rasterization are the shared host code of
   list and runs the exact per-sample test of every exact method (the same expressions)
   on each node, counting tests per node with atomics and writing shadow bits.
 
-``run`` is ``izb`` with these kernels; the counters equal the JAX method's.
+``run`` is ``izb`` with these kernels; the counters equal the JAX method's. Compiled with
+``fuse_fp=False``: every product rounded, as written.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ import warp as wp
 from ..methods import izb as jizb
 from ..methods.registry import resolve_options
 from .runtime import init
+
+wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
 
 @wp.kernel
