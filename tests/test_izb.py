@@ -189,3 +189,19 @@ def test_shadow_map_bias_reduces_acne():
         assert errors[bias]["mismatch_fraction"] < 0.1 * errors["none"]["mismatch_fraction"]
     pcf = sl.compute_shadows(scene, gbuf, light, method="shadow_map", resolution=2048, pcf=True)
     assert compare_hard(pcf.lit, truth, gbuf.valid)["mismatch_fraction"] < 0.05
+
+
+@pytest.mark.parametrize("name", ["gate", "soup", "sphere_grid", "terrain", "fuzzy", "blobs"])
+def test_prepass_is_conservative_on_every_procedural_scene(name, precision):
+    from shadowlab.scene.procedural import default_view
+
+    params = {"soup": {"count": 60}, "fuzzy": {"triangles": 3000},
+              "sphere_grid": {"n": 3, "triangles_per_sphere": 200}}.get(name, {})
+    scene = sl.load_scene(name, **params)
+    view = default_view(name, scene, **params)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(24, 24)))
+    truth = sl.reference_shadows(scene, gbuf, view.light)
+    res = sl.compute_shadows(scene, gbuf, view.light, method="izb", precision=precision,
+                             resolution=1024)
+    assert res.counters["csm_false_shadows"] == 0
+    assert len(unexplained_mismatches(scene, gbuf, view.light, res.lit, truth)) == 0
