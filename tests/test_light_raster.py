@@ -202,3 +202,51 @@ def test_depth_plane_matches_the_ray_hit_and_bounds_the_square():
             _, depth = face.project(hit[None])
             assert np.isclose(lr.face_depth(face, depth)[0], centre[x], rtol=1e-9, atol=1e-9)
             assert lo[x] <= centre[x] <= hi[x]
+
+
+def _texel_space_edges(uv):
+    """Edge rows [1, 3, 3] and norms [1, 3] of a triangle given in texel space [3, 2]
+    (orthographic: P_i = (u_i, v_i, 1)), oriented inside-positive."""
+    p = np.concatenate([np.asarray(uv, float), np.ones((3, 1))], axis=1)
+    rows = np.stack([np.cross(p[(i + 1) % 3], p[(i + 2) % 3]) for i in range(3)])
+    rows *= np.sign(np.linalg.det(p))
+    return rows[None], np.hypot(rows[:, 0], rows[:, 1])[None]
+
+
+def test_exact_analytic_right_triangle_on_texel_corners():
+    """Triangle (1,1), (5.5,1), (1,5.5): legs exactly on texel borders (exact ties),
+    hypotenuse u + v = 6.5 through texel centres' diagonals."""
+    e, n = _texel_space_edges([(1, 1), (5.5, 1), (1, 5.5)])
+    ij = np.array([(i, j) for j in range(8) for i in range(8)])
+    col, row = ij[:, 0], ij[:, 1]
+    ee, nn = np.repeat(e, len(ij), 0), np.repeat(n, len(ij), 0)
+    cov = {m: {tuple(x) for x in ij[lr.coverage(ee, nn, col, row, m)]}
+           for m in ("inner", "outer", "standard")}
+    circle = {tuple(x) for x in ij[lr.coverage(ee, nn, col, row, "inner", "circle")]}
+    # the closed square inside: i, j >= 1 (corners on the legs count) and the far corner
+    # (i + 1) + (j + 1) <= 6.5
+    assert cov["inner"] == {(i, j) for i, j in ij if i >= 1 and j >= 1 and i + j <= 4}
+    # circle: the centre at least sqrt(2)/2 from every edge: i + 0.5 - 1 >= 0.707 and
+    # (6.5 - i - j - 1) / sqrt(2) >= 0.707
+    assert circle == {(2, 2)}
+    # every texel whose closed square meets the closed triangle is an outer fragment
+    touching = {(i, j) for i, j in ij if i <= 5 and j <= 5 and i + j <= 6}
+    assert touching <= cov["outer"]
+    assert cov["outer"] - touching <= {(6, 0), (0, 6)}   # beyond the acute vertices only
+    # centres inside: i, j >= 1 and i + j + 1 < 6.5
+    assert cov["standard"] == {(i, j) for i, j in ij if i >= 1 and j >= 1 and i + j <= 5}
+
+
+def test_top_left_rule_covers_a_shared_edge_centre_once():
+    """Two triangles sharing the diagonal u = v through texel centres: each centre on it
+    belongs to exactly one of them."""
+    ij = np.array([(i, j) for j in range(6) for i in range(6)])
+    col, row = ij[:, 0], ij[:, 1]
+    hits = []
+    for tri in ([(0, 0), (6, 0), (6, 6)], [(0, 0), (6, 6), (0, 6)]):
+        e, n = _texel_space_edges(tri)
+        hits.append(lr.coverage(np.repeat(e, len(ij), 0), np.repeat(n, len(ij), 0), col, row,
+                                "standard"))
+    diag = col == row
+    assert np.all(hits[0][diag] ^ hits[1][diag])
+    assert np.all(hits[0] | hits[1])

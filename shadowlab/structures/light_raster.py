@@ -215,21 +215,6 @@ def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
     return np.concatenate(tris).astype(np.int64), np.concatenate(slots).astype(np.int64)
 
 
-def edge_values(edges, col, row, xp=np):
-    """Edge rows [F, 3, 3] at the corners and centre of texels (col, row) [F].
-
-    Returns:
-        corners [F, 3, 4] (the four corners of :data:`CORNERS`), centre [F, 3]; the
-        values ``A_i . (u, v, 1)`` in the dtype of ``edges``.
-    """
-    a, b, c = edges[..., 0], edges[..., 1], edges[..., 2]
-    u = col.astype(edges.dtype)[:, None]
-    v = row.astype(edges.dtype)[:, None]
-    corners = xp.stack([a * (u + du) + b * (v + dv) + c for du, dv in CORNERS], axis=-1)
-    centre = a * (u + 0.5) + b * (v + 0.5) + c
-    return corners, centre
-
-
 def _distance(values, norms, xp):
     """Signed distance in texels; +-inf for an edge whose line is at infinity."""
     safe = xp.where(norms > 0, norms, 1)
