@@ -26,6 +26,7 @@ import numpy as np
 import shadowlab as sl
 from shadowlab.core.frame import view_samples
 from shadowlab.harness import References, evaluate
+from shadowlab.methods.izb import light_area
 from shadowlab.methods.shadow_map import fit_camera
 from shadowlab.scene.procedural import default_view
 from shadowlab.structures import light_raster as lr
@@ -37,8 +38,7 @@ def median_area(scene, gbuf, light, resolution: int) -> float:
     samples = view_samples(gbuf, light)
     cam = fit_camera(scene, samples, light, resolution, "auto")
     st = lr.setup_face(cam.faces[0], scene.triangles)
-    keep = st.front & st.ok
-    area = st.absdet[keep] / (2 * np.prod(st.vertex_w[keep], axis=1))
+    area = light_area(st)[st.front & st.ok]
     return float(np.median(area)) if area.size else 0.0
 
 

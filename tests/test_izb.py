@@ -110,6 +110,17 @@ def test_prepass_orderings_are_identities():
         assert not np.any(runs["circle", "slope"] & ~runs["circle", "corner"])
 
 
+def test_csm_min_area_draws_fewer_casters_and_stays_conservative():
+    base = _run("steep", "float32", resolution=512).counters
+    prev = base["csm_culled_per_pixel"].astype(bool)
+    for area in (2.0, 50.0, 1e9):
+        c = _run("steep", "float32", resolution=512, csm_min_area=area).counters
+        culled = c["csm_culled_per_pixel"].astype(bool)
+        assert c["csm_false_shadows"] == 0 and not np.any(culled & ~prev)
+        prev = culled
+    assert base["csm_culled"] > 0 and c["csm_culled"] == 0 and c["csm_texels"] == 0
+
+
 def test_izb_refuses_the_prepass_with_the_cap_bias():
     scene, gbuf, light, _ = frame("steep")
     with pytest.raises(MethodError, match="prepass='csm' needs bias='receiver'"):

@@ -130,21 +130,25 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
               "coverage_margin": Option(1e-3, "texels every coverage decision keeps from an "
                                         "edge (raised to cover rounding)", kind=float,
                                         minimum=0.0, maximum=0.25),
+              "csm_min_area": Option(0.0, "CSM: draw only casters whose light-space area is "
+                                     "at least this many texels (the poster's remedy for "
+                                     "small triangles; 0 draws every caster)", kind=float,
+                                     minimum=0.0),
               "verify": Option(True, "re-test every CSM-culled sample against every caster "
                                "(counter csm_false_shadows)", allowed=(True, False)),
               "bias": Option("receiver", "self-shadowing bias, as brute_force; the CSM "
                              "prepass needs 'receiver'", allowed=("receiver", "cap")),
           })
 def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, projection,
-        coverage, csm_depth, coverage_margin, verify, bias):
+        coverage, csm_depth, coverage_margin, csm_min_area, verify, bias):
     return run_frame(scene, gbuf, light, ENGINE, precision=precision, shadow_eps=shadow_eps,
                      prepass=prepass, resolution=resolution, projection=projection,
                      coverage=coverage, csm_depth=csm_depth, coverage_margin=coverage_margin,
-                     verify=verify, bias=bias)
+                     csm_min_area=csm_min_area, verify=verify, bias=bias)
 
 
 def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, resolution,
-              projection, coverage, csm_depth, coverage_margin, verify, bias):
+              projection, coverage, csm_depth, coverage_margin, csm_min_area, verify, bias):
     """One ``izb`` frame with the list build and tracing of ``engine`` (the JAX one,
     :data:`ENGINE`, or the Warp kernels' ``shadowlab.kernels.izb.ENGINE``)."""
     if prepass == "csm" and bias != "receiver":
@@ -194,7 +198,7 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
             if prepass == "csm":
                 culled, csm_texels = _csm(cam, setups, samples, light_h, face, key, delta_p,
                                           m_delta, ok_tri, coverage, csm_depth, tau,
-                                          cap_bias(scene, shadow_eps))
+                                          cap_bias(scene, shadow_eps), csm_min_area)
 
         with timer.stage("build"):
             lkeys = np.unique(key[~culled])
@@ -330,8 +334,16 @@ def receiver_points(samples, light_h: np.ndarray, eps: float) -> np.ndarray:
     return p + step[:, None] * l
 
 
+def light_area(setup: lr.FaceSetup) -> np.ndarray:
+    """float64 [T]: projected area (texels) of the triangles in front of the light on a
+    face (|D| / (2 w0 w1 w2)); 0 for the others."""
+    front = setup.front & setup.ok
+    w = np.where(front[:, None], setup.vertex_w, 1.0)
+    return np.where(front, setup.absdet / (2 * np.prod(w, axis=1)), 0.0)
+
+
 def _csm(cam, setups, samples, light_h, face, key, delta_p, m_delta, ok_tri, test, depth_mode,
-         tau, eps):
+         tau, eps, min_area=0.0):
     """bool [S] samples culled by the conservative shadow map, and its full texels."""
     r = cam.resolution[0]
     q = receiver_points(samples, light_h, eps)
@@ -341,7 +353,7 @@ def _csm(cam, setups, samples, light_h, face, key, delta_p, m_delta, ok_tri, tes
         _, dq = cam.faces[f].project(q[sel])
         delta_q[sel] = lr.face_depth(cam.faces[f], dq)
     keys, inv = np.unique(key, return_inverse=True)
-    select = [ok_tri & s.ok & s.front for s in setups]
+    select = [ok_tri & s.ok & s.front & (light_area(s) >= min_area) for s in setups]
     ftri, fslot = lr.candidates(setups, keys, r, select=select)
     fkey = keys[fslot]
     edges, norms, dplane, col, row = lr.fragment_arrays(setups, ftri, fkey, r)
