@@ -88,6 +88,8 @@ class FaceSetup:
         ok: bool [T] rasterizable (D != 0 and not entirely behind the light).
         vertex_delta: [T, 3] delta of the vertices (meaningful where ``front``).
         vertex_w: [T, 3] homogeneous w of the vertices; absdet: [T] |D|.
+        unit: [T, 3, 3] edge rows divided by their norms: ``unit_i . (u, v, 1)`` is the
+            signed distance to edge i in texels (+-inf constants for an edge at infinity).
     """
 
     edges: np.ndarray
@@ -99,6 +101,7 @@ class FaceSetup:
     vertex_delta: np.ndarray
     vertex_w: np.ndarray
     absdet: np.ndarray
+    unit: np.ndarray
 
 
 def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> FaceSetup:
@@ -146,7 +149,12 @@ def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> Face
     for t in np.flatnonzero(ok & ~front):   # reaching behind the light: clip the grid
         bbox[t] = _clipped_box(edges[t], norms[t], r, pad)
     bbox[~ok] = (1, 0, 1, 0)
-    return FaceSetup(edges, norms, depth, bbox, front, ok, vdelta, w, absdet)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        unit = edges / norms[..., None]
+    flat = norms == 0
+    unit[flat] = 0.0
+    unit[..., 2] = np.where(flat, np.where(edges[..., 2] >= 0, np.inf, -np.inf), unit[..., 2])
+    return FaceSetup(edges, norms, depth, bbox, front, ok, vdelta, w, absdet, unit)
 
 
 def _clipped_box(edges: np.ndarray, norms: np.ndarray, r: int, pad: float) -> np.ndarray:
@@ -216,7 +224,10 @@ def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
 
 
 def _distance(values, norms, xp):
-    """Signed distance in texels; +-inf for an edge whose line is at infinity."""
+    """Signed distance in texels; +-inf for an edge whose line is at infinity.
+    ``norms=None``: the rows are already unit rows (``FaceSetup.unit``)."""
+    if norms is None:
+        return values
     safe = xp.where(norms > 0, norms, 1)
     big = xp.where(values >= 0, xp.inf, -xp.inf)
     return xp.where(norms > 0, values / safe, big)
@@ -228,7 +239,8 @@ def coverage(edges, norms, col, row, mode: str, inner_test: str = "corners", tau
 
     Args:
         edges: [F, 3, 3] edge rows of each fragment's triangle; norms: [F, 3] their
-            gradient lengths; col, row: int [F] texel.
+            gradient lengths, or None when ``edges`` are unit rows (``FaceSetup.unit``);
+            col, row: int [F] texel.
         mode: "standard" (centre, top-left rule), "inner" (closed square inside, at
             least ``tau`` texels from every edge; ``inner_test`` "corners" or "circle"),
             "outer" (closed square within ``tau`` texels of every edge's inside).
@@ -305,9 +317,8 @@ def rasterize(camera: LightCamera, triangles: np.ndarray, mode: str,
     key = keys[slot]
     face = key // (r * r)
     col, row = key % r, (key // r) % r
-    edges = np.stack([s.edges for s in setups])[face, tri].astype(dtype)
-    norms = np.stack([s.norms for s in setups])[face, tri].astype(dtype)
-    cov = np.asarray(coverage(edges, norms, col, row, mode, inner_test, tau, xp=np))
+    edges = np.stack([s.unit for s in setups])[face, tri].astype(dtype)
+    cov = np.asarray(coverage(edges, None, col, row, mode, inner_test, tau, xp=np))
     return tri[cov], key[cov], setups
 
 
@@ -344,12 +355,15 @@ def texel_world_size(camera: LightCamera, points: np.ndarray) -> np.ndarray:
 
 def fragment_arrays(setups: list[FaceSetup], tri: np.ndarray, key: np.ndarray, resolution: int,
                     dtype=np.float64):
-    """Per-fragment edges [F, 3, 3], norms [F, 3], depth planes [F, 3] (``dtype``), and
-    column, row int64 [F] of fragments (triangle ``tri``, texel ``key``)."""
+    """Per-fragment unit edge rows [F, 3, 3], None (for ``coverage``'s ``norms``), depth
+    planes [F, 3] (``dtype``), and column, row int64 [F] of fragments (triangle ``tri``,
+    texel ``key``)."""
     r = int(resolution)
-    face = key // (r * r)
-    pick = (face, tri)
-    edges = np.stack([s.edges for s in setups])[pick].astype(dtype)
-    norms = np.stack([s.norms for s in setups])[pick].astype(dtype)
-    depth = np.stack([s.depth for s in setups])[pick].astype(dtype)
-    return edges, norms, depth, key % r, (key // r) % r
+    if len(setups) == 1:
+        unit, depth = setups[0].unit[tri], setups[0].depth[tri]
+    else:
+        face = key // (r * r)
+        unit = np.stack([s.unit for s in setups])[face, tri]
+        depth = np.stack([s.depth for s in setups])[face, tri]
+    return (unit.astype(dtype, copy=False), None, depth.astype(dtype, copy=False), key % r,
+            (key // r) % r)
