@@ -110,6 +110,19 @@ def test_prepass_orderings_are_identities():
         assert not np.any(runs["circle", "slope"] & ~runs["circle", "corner"])
 
 
+@pytest.mark.parametrize("light_name", ["steep", "inside"])
+def test_a_finer_csm_culls_more_and_stays_exact(light_name, precision):
+    scene, gbuf, light, truth = frame(light_name)
+    extra = {"projection": "cube"} if light_name == "inside" else {}
+    one = _run(light_name, precision, resolution=256, **extra)
+    fine = _run(light_name, precision, resolution=256, csm_scale=4, **extra)
+    assert fine.counters["csm_false_shadows"] == 0
+    assert len(unexplained_mismatches(scene, gbuf, light, fine.lit, truth)) == 0
+    assert np.array_equal(one.lit, fine.lit)
+    assert fine.counters["csm_culled"] > one.counters["csm_culled"]
+    assert fine.counters["tests"] < one.counters["tests"]
+
+
 def test_csm_min_area_draws_fewer_casters_and_stays_conservative():
     base = _run("steep", "float32", resolution=512).counters
     prev = base["csm_culled_per_pixel"].astype(bool)

@@ -130,6 +130,9 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
               "coverage_margin": Option(1e-3, "texels every coverage decision keeps from an "
                                         "edge (raised to cover rounding)", kind=float,
                                         minimum=0.0, maximum=0.25),
+              "csm_scale": Option(1, "CSM texels per IZB texel side (1: the poster's shared "
+                                  "grid; k: a k x finer CSM over the same extent, read at the "
+                                  "sample's finer texel)", allowed=(1, 2, 4, 8)),
               "csm_min_area": Option(0.0, "CSM: draw only casters whose light-space area is "
                                      "at least this many texels (the poster's remedy for "
                                      "small triangles; 0 draws every caster)", kind=float,
@@ -140,15 +143,17 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
                              "prepass needs 'receiver'", allowed=("receiver", "cap")),
           })
 def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, projection,
-        coverage, csm_depth, coverage_margin, csm_min_area, verify, bias):
+        coverage, csm_depth, coverage_margin, csm_scale, csm_min_area, verify, bias):
     return run_frame(scene, gbuf, light, ENGINE, precision=precision, shadow_eps=shadow_eps,
                      prepass=prepass, resolution=resolution, projection=projection,
                      coverage=coverage, csm_depth=csm_depth, coverage_margin=coverage_margin,
-                     csm_min_area=csm_min_area, verify=verify, bias=bias)
+                     csm_scale=csm_scale, csm_min_area=csm_min_area, verify=verify,
+                     bias=bias)
 
 
 def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, resolution,
-              projection, coverage, csm_depth, coverage_margin, csm_min_area, verify, bias):
+              projection, coverage, csm_depth, coverage_margin, csm_scale, csm_min_area, verify,
+              bias):
     """One ``izb`` frame with the list build and tracing of ``engine`` (the JAX one,
     :data:`ENGINE`, or the Warp kernels' ``shadowlab.kernels.izb.ENGINE``)."""
     if prepass == "csm" and bias != "receiver":
@@ -196,8 +201,17 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
         csm_texels = 0
         with timer.stage("csm"):
             if prepass == "csm":
-                culled, csm_texels = _csm(cam, setups, samples, light_h, face, key, delta_p,
-                                          m_delta, ok_tri, coverage, csm_depth, tau,
+                c_cam, c_setups, c_face, c_key, c_delta, c_tau, c_m = (
+                    cam, setups, face, key, delta_p, tau, m_delta)
+                if csm_scale > 1:   # a finer grid over the same extent
+                    c_cam = fit_camera(scene, samples, light, resolution * csm_scale,
+                                       projection, padding=csm_scale)
+                    c_face, _, c_key, c_delta = lr.project_points(c_cam, samples.position)
+                    c_setups = [lr.setup_face(f, scene.triangles) for f in c_cam.faces]
+                    c_tau = coverage_margin + lr.rounding_margin(dtype, extent, tw / csm_scale)
+                    c_m = _delta_slope(c_cam, c_delta) * m_world
+                culled, csm_texels = _csm(c_cam, c_setups, samples, light_h, c_face, c_key,
+                                          c_delta, c_m, ok_tri, coverage, csm_depth, c_tau,
                                           cap_bias(scene, shadow_eps), csm_min_area)
 
         with timer.stage("build"):

@@ -33,15 +33,17 @@ BIASES = ("none", "constant", "slope", "normal")
 PROJECTIONS = ("auto", "perspective", "cube")
 
 
-def fit_camera(scene, samples, light, resolution: int, projection: str):
+def fit_camera(scene, samples, light, resolution: int, projection: str, padding: int = 1):
     """The light camera fitted to the samples' positions (casters: the scene's box).
 
-    ``projection`` applies to point lights; a directional light is orthographic."""
+    ``projection`` applies to point lights; a directional light is orthographic. The
+    extent depends on ``resolution / padding`` only, so ``(k R, k)`` gives the grid of
+    ``(R, 1)`` with every texel split into k x k."""
     light = hard_light(light)
     proj = "auto" if isinstance(light, DirectionalLight) else projection
     try:
         return fit_light_camera(light, samples.position, casters=box_corners(scene.bounds),
-                                resolution=resolution, projection=proj)
+                                resolution=resolution, projection=proj, padding=padding)
     except ValueError as err:
         raise MethodError(f"option projection={projection!r}: {err}; allowed: "
                           f"{', '.join(PROJECTIONS)} ('auto' picks a cube)") from err
