@@ -52,7 +52,8 @@ PREPASSES = ("none", "csm")
 RESOLUTIONS = (256, 512, 1024, 2048, 4096, 8192)
 CSM_DEPTHS = ("corner", "slope")
 #: the poster's configuration (``--set`` these to reproduce it)
-PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope"}
+PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "csm_scale": 1,
+                "csm_min_area": 0.0}
 #: most (triangle, node) pairs tested in one call of the pair kernel
 PAIR_CHUNK = 1 << 20
 
