@@ -175,7 +175,8 @@ def test_default_run_with_every_method_skips_soft_methods_on_a_point_light(tmp_p
     assert set(metrics["summary"]) == set(methods.names()) - soft
     assert set(metrics["skipped"]) == soft
     for name, row in metrics["summary"].items():
-        assert row["mismatches"] == 0, name
+        if methods.get(name).kind is methods.MethodKind.EXACT:   # approximate: shadow_map
+            assert row["mismatches"] == 0, name
     assert "skipped" in capsys.readouterr().out
 
 

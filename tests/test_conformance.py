@@ -36,9 +36,11 @@ SUMS = {"tests_per_pixel": "tests", "visited_nodes_per_pixel": "visited_nodes",
         "stencil_updates_per_pixel": "stencil_updates",
         "stack_overflows_per_pixel": "stack_overflows",
         "stackless_switches_per_pixel": "stackless_switches",
-        "rasterized_per_pixel": "rasterized_triangles"}
+        "rasterized_per_pixel": "rasterized_triangles",
+        "csm_culled_per_pixel": "csm_culled"}
 #: per-pixel map -> the scalar that is its maximum
-MAXES = {"stack_max_per_pixel": "stack_max", "tile_triangles_per_pixel": "tile_triangles_max"}
+MAXES = {"stack_max_per_pixel": "stack_max", "tile_triangles_per_pixel": "tile_triangles_max",
+         "list_length_per_pixel": "list_length_max"}
 
 
 @functools.lru_cache(maxsize=None)

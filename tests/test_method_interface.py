@@ -124,7 +124,7 @@ def test_kernels_hang_off_the_registry():
     from shadowlab import kernels
 
     with_kernel = {n for n in registry.names() if registry.get(n).kernel is not None}
-    assert with_kernel == {"psv", "d_psv", "d_stackless", "d_hybrid", "clustered_ptsv"}
+    assert with_kernel == {"psv", "d_psv", "d_stackless", "d_hybrid", "clustered_ptsv", "izb"}
     assert set(kernels.METHODS) == with_kernel
     assert sl.methods.available()["psv"]["kernel"] is True
     with pytest.raises(MethodError, match="no kernel version of 'zpass'"):

@@ -108,6 +108,27 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("near_clamp_per_pixel", "map", "rasterized triangles with a vertex behind the "
             "fragment or closer than the paper's clamp depth (s |z| < 1e-4), where its abs() "
             "and max() act"),
+    # light-space methods (shadow_map, izb; docs/shadow_map.md, docs/izb.md)
+    Counter("light_faces", "int", "faces of the light camera (1, or 6 for a cube)"),
+    Counter("light_texels", "int", "distinct light texels read by the lookups (the only texels "
+            "rasterized)"),
+    Counter("sm_fragments", "int", "shadow-map fragments: triangle x texel pairs whose texel "
+            "centre the triangle covers, over the texels read"),
+    Counter("list_nodes", "int", "IZB: samples inserted in texel lists"),
+    Counter("list_length_max", "int", "IZB: longest texel list"),
+    Counter("list_length_per_pixel", "map", "IZB: length of the list of the pixel's texel (0 "
+            "for samples not inserted)"),
+    Counter("list_nonempty_texels", "int", "IZB: texels with a non-empty list"),
+    Counter("traced_fragments", "int", "IZB: triangle x texel pairs traced (outer-conservative "
+            "fragments on non-empty texels that the depth buffer did not cull)"),
+    Counter("depth_culled_fragments", "int", "IZB: outer-conservative fragments on non-empty "
+            "texels culled by the farthest-node depth buffer"),
+    Counter("csm_texels", "int", "CSM: occupied texels (holding a sample) fully covered by a "
+            "caster, so holding a conservative depth"),
+    Counter("csm_culled", "int", "CSM: samples culled by the prepass (shadowed, not inserted)"),
+    Counter("csm_culled_per_pixel", "map", "1 where the prepass culled the pixel's sample"),
+    Counter("csm_false_shadows", "int", "CSM: culled samples that the exact test over every "
+            "caster finds lit; must be 0 (-1 when the check is off)"),
     Counter("cas_failures", "int", "reference kernels: compare-and-swap operations that lost a "
             "race (the slot was taken by another thread first); 0 in a serial schedule"),
 ]}

@@ -23,6 +23,7 @@ One file per algorithm: ``psv.py`` (TOP-tree insertion and the four queries),
 ``clustered_ptsv.py`` (hierarchy build, triangle setup, the Algorithm 1 traversal in a
 faithful 32-lane form and a fast warp-per-thread form, the merge),
 ``sun_disk.py`` (the per-fragment bitmask rasterizer of tiled soft shadows),
+``izb.py`` (the irregular z-buffer's list build and per-texel tracing walk),
 ``runtime.py`` (Warp initialisation and the kernel cache), ``bench.py``
 (``python -m shadowlab.kernels.bench``), ``aot.py`` (ahead-of-time CUDA compilation).
 """
@@ -64,10 +65,18 @@ def _clustered_ptsv_kernel(scene, gbuf, light, **options):
     return clustered_ptsv.run(scene, gbuf, light, **options)
 
 
+def _izb_kernel(scene, gbuf, light, **options):
+    """``kernels.izb.run`` (Warp is imported here, on first use)."""
+    _require()
+    from . import izb
+    return izb.run(scene, gbuf, light, **options)
+
+
 # The kernel versions hang off the method registry's entries.
 for _name in PSV_METHODS:
     registry.register_kernel(_name, _psv_kernel(_name))
 registry.register_kernel("clustered_ptsv", _clustered_ptsv_kernel)
+registry.register_kernel("izb", _izb_kernel)
 
 
 def methods() -> list[str]:

@@ -1,0 +1,400 @@
+"""``izb``: frustum-traced irregular z-buffer with the conservative z-prepass (exact).
+
+Wyman et al. 2015/2016 (the IZB) and Tokuyoshi and Mizokuchi 2018 (the conservative
+shadow-map prepass); see docs/izb.md. One frame:
+
+1. **Light space.** The light camera is fitted to the view samples (orthographic for a
+   directional light, a perspective face or a cube for a point light); every sample
+   gets its texel (one texel function) and its depth ``delta(p)``.
+2. **CSM prepass** (``prepass="csm"``). Casters in front of the light are rasterized
+   inner-conservatively (``coverage``: the poster's four corners or Hertel et al.'s
+   circumscribed circle) over the texels holding samples; a fully covered texel keeps
+   the smallest conservative depth (``csm_depth``: the plane's farthest corner over the
+   texel, or the poster's slope-scaled bias of 1). A sample whose receiver-biased point
+   q (the point the exact test uses, on the ray from p to the light) lies beyond that
+   depth is surely shadowed: it is written shadowed and not inserted.
+3. **List build.** The remaining samples are sorted into per-texel lists (CSR; the
+   capacity is the exact node count) and each list keeps the depth of its farthest node.
+4. **Frustum tracing.** Every caster is rasterized outer-conservatively over the
+   non-empty texels; a fragment whose nearest depth over the texel is not in front of
+   the farthest node is culled; the others test every node of their list with the exact
+   per-sample test of every exact method (the canonical shadow-volume planes and the
+   receiver bias), in the working precision.
+
+The light-space bookkeeping (texels, coverage, depth bounds) is float64 and widened by
+margins that cover the working precision's rounding, so it only decides *which* pairs
+are tested; every shadow decision is the exact test (or the prepass's conservative
+cull). ``verify`` re-tests every culled sample against every caster (counter
+``csm_false_shadows``, which must be 0).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..core.capacity import bucket, pad
+from ..core.frame import caster_terms, cap_bias, precision_mode, view_samples
+from ..core.result import ShadowResult
+from ..core.timing import StageTimer
+from ..geometry.triangle_setup import shadow_volume_planes
+from ..scene.view import hard_light
+from ..structures import light_raster as lr
+from .brute_force import _test_kernel
+from .interface import MethodError
+from .registry import Option, register
+from .shadow_map import PROJECTIONS, fit_camera
+
+PREPASSES = ("none", "csm")
+RESOLUTIONS = (256, 512, 1024, 2048, 4096, 8192)
+CSM_DEPTHS = ("corner", "slope")
+#: the poster's configuration (``--set`` these to reproduce it)
+PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "csm_scale": 1,
+                "csm_min_area": 0.0}
+#: most (triangle, node) pairs tested in one call of the pair kernel
+PAIR_CHUNK = 1 << 20
+
+
+@jax.jit
+def _pair_test(points, scale, planes, bound, node, tri, count):
+    """int8 [S]: 1 where some pair (node, tri) [P] of the first ``count`` shadows the node.
+
+    The per-sample test of ``brute_force`` (the same expressions) on gathered pairs.
+    """
+    p = points[node]
+    px, py, pz = p[:, 0], p[:, 1], p[:, 2]
+    pl = planes[tri]
+    e0 = px * pl[:, 0] + py * pl[:, 1] + pz * pl[:, 2] + pl[:, 3]
+    e1 = px * pl[:, 4] + py * pl[:, 5] + pz * pl[:, 6] + pl[:, 7]
+    e2 = px * pl[:, 8] + py * pl[:, 9] + pz * pl[:, 10] + pl[:, 11]
+    cap = px * pl[:, 12] + py * pl[:, 13] + pz * pl[:, 14] + pl[:, 15]
+    hit = (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap * scale[node] < bound[tri])
+    hit &= jnp.arange(node.shape[0]) < count
+    return jnp.zeros(points.shape[0], jnp.int8).at[node].max(hit.astype(jnp.int8))
+
+
+def pair_shadows(points, scale, planes, bound, node: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """bool [S]: samples shadowed by some (node, tri) pair, chunked to static capacities."""
+    out = np.zeros(points.shape[0], bool)
+    total = len(node)
+    cap = bucket(min(total, PAIR_CHUNK), minimum=1024)
+    for start in range(0, total, cap):
+        n = min(cap, total - start)
+        hit = _pair_test(points, scale, planes, bound,
+                         jnp.asarray(pad(node[start:start + n], cap)),
+                         jnp.asarray(pad(tri[start:start + n], cap)), n)
+        out |= np.asarray(hit, bool)
+    return out
+
+
+def expand(counts: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(owner [N], index [N]): for each owner i, ``starts[i] + arange(counts[i])``."""
+    owner = np.repeat(np.arange(len(counts)), counts)
+    first = np.repeat(np.cumsum(counts) - counts, counts)
+    return owner, np.repeat(starts, counts) + np.arange(len(owner)) - first
+
+
+def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
+    """d delta / d depth at depths with delta [N] (1 orthographic; near / depth^2)."""
+    if cam.kind == "orthographic":
+        return np.ones_like(delta)
+    return delta * delta / cam.near
+
+
+@register("izb", doc="frustum-traced irregular z-buffer with the conservative shadow-map "
+          "prepass (exact)", kind="exact",
+          paper="Wyman et al. 2015/2016 (IZB); Tokuyoshi & Mizokuchi 2018 (CSM prepass)",
+          counters=("samples", "casters", "culled_triangles", "tests", "tests_per_pixel",
+                    "shadowed", "lit", "light_faces", "list_nodes", "list_length_max",
+                    "list_length_per_pixel",
+                    "list_nonempty_texels", "traced_fragments", "depth_culled_fragments",
+                    "csm_texels", "csm_culled", "csm_culled_per_pixel", "csm_false_shadows"),
+          stages=("samples", "setup", "light_setup", "csm", "build", "trace", "verify"),
+          options={
+              "prepass": Option("csm", "'none' (Wyman's IZB) or 'csm' (the conservative "
+                                "shadow-map prepass culls surely shadowed samples)",
+                                allowed=PREPASSES),
+              "resolution": Option(1024, "texels per side of each light face (IZB and CSM)",
+                                   allowed=RESOLUTIONS),
+              "projection": Option("auto", "point lights: one fitted perspective face, a "
+                                   "cube, or auto (directional lights: orthographic)",
+                                   allowed=PROJECTIONS),
+              "coverage": Option("corners", "CSM full-coverage test: 'corners' (the poster) "
+                                 "or 'circle' (Hertel et al. 2009)",
+                                 allowed=lr.INNER_TESTS),
+              "csm_depth": Option("corner", "CSM conservative depth: 'corner' (the plane's "
+                                  "farthest texel corner, tight) or 'slope' (the poster's "
+                                  "slope-scaled bias of 1)", allowed=CSM_DEPTHS),
+              "coverage_margin": Option(1e-3, "texels every coverage decision keeps from an "
+                                        "edge (raised to cover rounding)", kind=float,
+                                        minimum=0.0, maximum=0.25),
+              "csm_scale": Option(1, "CSM texels per IZB texel side (1: the poster's shared "
+                                  "grid; k: a k x finer CSM over the same extent, read at the "
+                                  "sample's finer texel)", allowed=(1, 2, 4, 8)),
+              "csm_min_area": Option(0.0, "CSM: draw only casters whose light-space area is "
+                                     "at least this many texels (the poster's remedy for "
+                                     "small triangles; 0 draws every caster)", kind=float,
+                                     minimum=0.0),
+              "verify": Option(True, "re-test every CSM-culled sample against every caster "
+                               "(counter csm_false_shadows)", allowed=(True, False)),
+              "bias": Option("receiver", "self-shadowing bias, as brute_force; the CSM "
+                             "prepass needs 'receiver'", allowed=("receiver", "cap")),
+          })
+def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, projection,
+        coverage, csm_depth, coverage_margin, csm_scale, csm_min_area, verify, bias):
+    return run_frame(scene, gbuf, light, ENGINE, precision=precision, shadow_eps=shadow_eps,
+                     prepass=prepass, resolution=resolution, projection=projection,
+                     coverage=coverage, csm_depth=csm_depth, coverage_margin=coverage_margin,
+                     csm_scale=csm_scale, csm_min_area=csm_min_area, verify=verify,
+                     bias=bias)
+
+
+def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, resolution,
+              projection, coverage, csm_depth, coverage_margin, csm_scale, csm_min_area, verify,
+              bias):
+    """One ``izb`` frame with the list build and tracing of ``engine`` (the JAX one,
+    :data:`ENGINE`, or the Warp kernels' ``shadowlab.kernels.izb.ENGINE``)."""
+    if prepass == "csm" and bias != "receiver":
+        raise MethodError("method 'izb': option prepass='csm' needs bias='receiver' (the "
+                          "prepass bounds the receiver-biased point); got bias='cap'")
+    timer = StageTimer()
+    with timer.stage("samples"):
+        samples = view_samples(gbuf, light)
+    s_count = samples.count
+    light_h = hard_light(light).homogeneous
+    with precision_mode(precision) as dtype:
+        t_cap = bucket(scene.num_triangles, minimum=16)
+        tri_pad = pad(scene.triangles, t_cap, dtype=dtype)
+        planes, valid = timer.run("setup", shadow_volume_planes, jnp.asarray(tri_pad),
+                                  jnp.asarray(light_h.astype(dtype)))
+        valid, _, scale, bound = caster_terms(scene, samples, light_h, planes, valid,
+                                              shadow_eps, bias, dtype)
+        casters = int(valid.sum())
+        counters = {"samples": s_count, "casters": casters,
+                    "culled_triangles": scene.num_triangles - casters}
+        if s_count == 0:
+            for name in ("light_setup", "csm", "build", "trace", "verify"):
+                timer.times[name] = 0.0
+            counters.update(_empty_counters(gbuf.valid.shape))
+            return ShadowResult(np.zeros(gbuf.valid.shape, bool), counters,
+                                dict(timer.times, total=timer.total))
+        points = jnp.asarray(samples.padded_position(dtype))
+        scale_j = jnp.asarray(samples.padded(scale, dtype))
+        bound_j = jnp.asarray(bound)
+        ok_tri = valid[: scene.num_triangles]
+
+        with timer.stage("light_setup"):
+            cam = fit_camera(scene, samples, light, resolution, projection)
+            r = cam.resolution[0]
+            face, uv, key, delta_p = lr.project_points(cam, samples.position)
+            setups = [lr.setup_face(f, scene.triangles) for f in cam.faces]
+            tw = float(lr.texel_world_size(cam, samples.position).min())
+            extent = np.concatenate([scene.triangles.reshape(-1, 3), samples.position])
+            tau = coverage_margin + lr.rounding_margin(dtype, extent, tw)
+            # depth margin (delta units per sample): rounding of world coordinates
+            m_world = 64.0 * float(np.finfo(dtype).eps) * float(np.abs(extent).max())
+            m_delta = _delta_slope(cam, delta_p) * m_world
+
+        culled = np.zeros(s_count, bool)
+        csm_texels = 0
+        with timer.stage("csm"):
+            if prepass == "csm":
+                c_cam, c_setups, c_face, c_key, c_delta, c_tau, c_m = (
+                    cam, setups, face, key, delta_p, tau, m_delta)
+                if csm_scale > 1:   # a finer grid over the same extent
+                    c_cam = fit_camera(scene, samples, light, resolution * csm_scale,
+                                       projection, padding=csm_scale)
+                    c_face, _, c_key, c_delta = lr.project_points(c_cam, samples.position)
+                    c_setups = [lr.setup_face(f, scene.triangles) for f in c_cam.faces]
+                    c_tau = coverage_margin + lr.rounding_margin(dtype, extent, tw / csm_scale)
+                    c_m = _delta_slope(c_cam, c_delta) * m_world
+                culled, csm_texels = _csm(c_cam, c_setups, samples, light_h, c_face, c_key,
+                                          c_delta, c_m, ok_tri, coverage, csm_depth, c_tau,
+                                          cap_bias(scene, shadow_eps), csm_min_area)
+
+        with timer.stage("build"):
+            lkeys = np.unique(key[~culled])
+            slot = np.where(culled, -1, np.searchsorted(lkeys, key))
+            lists = engine.build(slot, delta_p, m_delta, len(lkeys))
+
+        with timer.stage("trace"):
+            select = [ok_tri & s.ok for s in setups]
+            ftri, fslot = lr.candidates(setups, lkeys, r, select=select)
+            fkey = lkeys[fslot]
+            edges, norms, dplane, col, row = lr.fragment_arrays(setups, ftri, fkey, r)
+            over = lr.coverage(edges, norms, col, row, "outer", tau=tau)
+            lo, _, _ = lr.depth_range(dplane, col, row)
+            shadow, tests_per, traced, depth_culled = engine.trace(
+                ftri[over], fslot[over], lo[over], lists, points, scale_j, planes, bound_j,
+                s_count)
+            # valid casters with a light-space determinant of exactly 0 on a face: test
+            # them against every node of that face (nothing rasterizes them)
+            order = lists.order
+            for f, st in enumerate(setups):
+                odd = np.flatnonzero(ok_tri & (st.absdet == 0) & np.any(st.vertex_w > 0, axis=1))
+                fn = order[face[order] == f]
+                if len(odd) and len(fn):
+                    pn, pt = np.tile(fn, len(odd)), np.repeat(odd, len(fn))
+                    shadow |= pair_shadows(points, scale_j, planes, bound_j, pn, pt)[:s_count]
+                    tests_per += np.bincount(pn, minlength=s_count)
+            shadow |= culled
+
+        false_shadows = -1
+        with timer.stage("verify"):
+            if prepass == "csm" and verify:
+                false_shadows = _verify(culled, samples, points, scale_j, planes, bound,
+                                        scene.num_triangles, dtype)
+
+    lit_values = ~shadow
+    lit = samples.scatter(lit_values, fill=False)
+    llen = lists.length
+    length_per = np.zeros(s_count, np.int64)
+    length_per[order] = np.repeat(llen, llen)
+    counters.update({
+        "tests": int(tests_per.sum()),
+        "tests_per_pixel": samples.scatter(tests_per.astype(np.int64), fill=0),
+        "shadowed": int(shadow.sum()), "lit": int(lit.sum()),
+        "light_faces": len(cam.faces), "list_nodes": int(len(order)),
+        "list_length_max": int(llen.max(initial=0)),
+        "list_length_per_pixel": samples.scatter(length_per, fill=0),
+        "list_nonempty_texels": int(len(lkeys)),
+        "traced_fragments": int(traced), "depth_culled_fragments": int(depth_culled),
+        "csm_texels": int(csm_texels), "csm_culled": int(culled.sum()),
+        "csm_culled_per_pixel": samples.scatter(culled.astype(np.int64), fill=0),
+        "csm_false_shadows": int(false_shadows)})
+    return ShadowResult(lit, counters, dict(timer.times, total=timer.total))
+
+
+@dataclasses.dataclass(frozen=True)
+class Lists:
+    """Per-texel node lists (CSR over the non-empty texels).
+
+    Attributes:
+        order: int64 [N] sample indices, list by list, each list in sample order;
+        start, length: int64 [K] of each list; maxd: float64 [K] delta of the farthest
+        node; maxm: float64 [K] the largest depth margin of the list's nodes.
+    """
+
+    order: np.ndarray
+    start: np.ndarray
+    length: np.ndarray
+    maxd: np.ndarray
+    maxm: np.ndarray
+
+
+class JaxEngine:
+    """List build (a stable sort) and tracing (expanded (node, triangle) pairs tested by
+    the jitted pair kernel)."""
+
+    @staticmethod
+    def build(slot: np.ndarray, delta: np.ndarray, margin: np.ndarray, k: int) -> Lists:
+        """Lists of the samples with ``slot`` [S] >= 0 (their texel's list), ``delta`` [S]
+        and depth ``margin`` [S] (float64), ``k`` lists."""
+        nodes = np.flatnonzero(slot >= 0)
+        order = nodes[np.argsort(slot[nodes], kind="stable")]
+        length = np.bincount(slot[order], minlength=k).astype(np.int64)
+        start = np.cumsum(length) - length
+        owner = np.repeat(np.arange(k), length)
+        maxd = np.full(k, -np.inf)
+        np.maximum.at(maxd, owner, delta[order])
+        maxm = np.zeros(k)
+        np.maximum.at(maxm, owner, margin[order])
+        return Lists(order, start, length, maxd, maxm)
+
+    @staticmethod
+    def trace(tri, slot, lo, lists: Lists, points, scale, planes, bound, count):
+        """Fragments (triangle ``tri`` [F], list ``slot`` [F], smallest delta ``lo`` [F]):
+        depth culling against the farthest node, then every node of the list tested.
+
+        Returns:
+            shadow bool [count], tests per sample int64 [count], traced fragments,
+            depth-culled fragments.
+        """
+        keep = lo < lists.maxd[slot] + lists.maxm[slot]
+        ttri, tslot = tri[keep], slot[keep]
+        owner, pos = expand(lists.length[tslot], lists.start[tslot])
+        node, ptri = lists.order[pos], ttri[owner]
+        shadow = pair_shadows(points, scale, planes, bound, node, ptri)[:count]
+        return (shadow, np.bincount(node, minlength=count).astype(np.int64),
+                int(keep.sum()), int((~keep).sum()))
+
+
+ENGINE = JaxEngine()
+
+
+def _empty_counters(shape) -> dict:
+    zero_map = np.zeros(shape, np.int64)
+    return {"tests": 0, "tests_per_pixel": zero_map, "shadowed": 0, "lit": 0,
+            "light_faces": 0, "list_nodes": 0, "list_length_max": 0,
+            "list_length_per_pixel": zero_map.copy(),
+            "list_nonempty_texels": 0, "traced_fragments": 0, "depth_culled_fragments": 0,
+            "csm_texels": 0, "csm_culled": 0, "csm_culled_per_pixel": zero_map.copy(),
+            "csm_false_shadows": 0}
+
+
+def receiver_points(samples, light_h: np.ndarray, eps: float) -> np.ndarray:
+    """float64 [S, 3]: q = p + (eps / (n . l)) l, the receiver-biased point on the ray from
+    each sample p to the light (l the unit direction to the light), where the exact
+    methods' receiver bias puts the crossing (``shadowlab.core.frame.bias_terms``)."""
+    p = samples.position
+    to_light = light_h[:3] - light_h[3] * p
+    l = to_light / np.linalg.norm(to_light, axis=1, keepdims=True)
+    cos = np.maximum(np.einsum("ij,ij->i", samples.normal, l), 1e-12)
+    step = eps / cos
+    if light_h[3] != 0:   # never past the light
+        step = np.minimum(step, np.linalg.norm(to_light, axis=1))
+    return p + step[:, None] * l
+
+
+def light_area(setup: lr.FaceSetup) -> np.ndarray:
+    """float64 [T]: projected area (texels) of the triangles in front of the light on a
+    face (|D| / (2 w0 w1 w2)); 0 for the others."""
+    front = setup.front & setup.ok
+    w = np.where(front[:, None], setup.vertex_w, 1.0)
+    return np.where(front, setup.absdet / (2 * np.prod(w, axis=1)), 0.0)
+
+
+def _csm(cam, setups, samples, light_h, face, key, delta_p, m_delta, ok_tri, test, depth_mode,
+         tau, eps, min_area=0.0):
+    """bool [S] samples culled by the conservative shadow map, and its full texels."""
+    r = cam.resolution[0]
+    q = receiver_points(samples, light_h, eps)
+    delta_q = np.empty(samples.count)
+    for f in np.unique(face):
+        sel = face == f
+        _, dq = cam.faces[f].project(q[sel])
+        delta_q[sel] = lr.face_depth(cam.faces[f], dq)
+    keys, inv = np.unique(key, return_inverse=True)
+    select = [ok_tri & s.ok & s.front & (light_area(s) >= min_area) for s in setups]
+    ftri, fslot = lr.candidates(setups, keys, r, select=select)
+    fkey = keys[fslot]
+    edges, norms, dplane, col, row = lr.fragment_arrays(setups, ftri, fkey, r)
+    full = lr.coverage(edges, norms, col, row, "inner", test, tau=tau)
+    dplane, col, row, fslot = dplane[full], col[full], row[full], fslot[full]
+    _, hi, centre = lr.depth_range(dplane, col, row)
+    if depth_mode == "slope":
+        cons = centre + np.maximum(np.abs(dplane[:, 0]), np.abs(dplane[:, 1]))
+        cons = np.maximum(cons, hi)   # equal or larger in exact arithmetic; guards rounding
+    else:
+        cons = hi
+    csm = np.full(len(keys), np.inf)
+    np.minimum.at(csm, fslot, cons)
+    culled = delta_q > csm[inv] + m_delta
+    return culled, int(np.isfinite(csm).sum())
+
+
+def _verify(culled, samples, points, scale, planes, bound, num_triangles, dtype) -> int:
+    """Culled samples that the exact test over every caster finds lit."""
+    idx = np.flatnonzero(culled)
+    if len(idx) == 0:
+        return 0
+    chunk = 16
+    cap = bucket(len(idx), steps=8)
+    sub_p = jnp.asarray(pad(np.asarray(points)[idx], cap))
+    sub_s = jnp.asarray(pad(np.asarray(scale)[idx], cap))
+    n_chunks = jnp.asarray(-(-num_triangles // chunk), dtype=jnp.int32)
+    shadow = np.asarray(_test_kernel(chunk)(sub_p, sub_s, planes, jnp.asarray(bound), n_chunks))
+    return int((~shadow[: len(idx)]).sum())

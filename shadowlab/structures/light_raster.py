@@ -1,0 +1,369 @@
+"""Light-space rasterizer: triangles over the R x R texel grid of a light-camera face.
+
+A building block shared by the shadow map and the irregular z-buffer (IZB). Three
+coverage modes decide whether triangle T produces a fragment in texel t:
+
+- ``"standard"``: the texel centre is inside T (a shadow map), with a top-left rule
+  on exact zeros so a centre on an edge shared by two triangles is covered once;
+- ``"inner"``: the closed texel square lies inside T (a conservative shadow map), with
+  two tests, ``inner_test="corners"`` (all four corners inside: Tokuyoshi and Mizokuchi
+  2018, Program 1) and ``"circle"`` (the texel's circumscribed circle inside: Hertel et
+  al. 2009); ``circle`` implies ``corners``;
+- ``"outer"``: the closed texel square meets T (frustum tracing in the IZB).
+
+**Homogeneous edge functions** (Olano and Greer 1997). A face maps a world point X to
+homogeneous texel coordinates h = M (X, 1) = (u w, v w, w) (:func:`homogeneous_matrix`;
+w = 1 on an orthographic face, w = depth along the view axis on a perspective one). With
+P_i = h(vertex i), the edge functions E_i(u, v) = (P_j x P_k) . (u, v, 1) ((i, j, k)
+cyclic) and D = det[P_0, P_1, P_2] give barycentrics b_i = E_i / D of (u, v, 1) =
+sum_i b_i P_i, so (u, v) is covered iff every b_i >= 0, iff the ray from the light through
+(u, v) meets T in front of the light. That holds for triangles reaching behind a point
+light too: no clipping is needed, and a triangle entirely behind the light covers nothing.
+Edge rows are stored as ``A_i = sign(D) (P_j x P_k)``, so A_i . (u, v, 1) >= 0 inside.
+
+**Depth** ``delta`` increases away from the light and is affine in (u, v) over a plane:
+orthographic faces use the depth along the view axis (world units); perspective faces
+``delta = -near / depth`` (dimensionless, in [-1, 0) beyond ``near``; ``1/depth`` is affine
+over a plane). Its plane over T is ``Z . (u, v, 1)`` with Z = sum_i kappa_i A_i / |D|,
+kappa_i = delta_i w_i. The extremes of an affine function over a texel square are at its
+corners, which is how conservative depths are bounded.
+
+**Fragments over a set of texels.** Work is enumerated only over a sorted set of texel
+keys ``face * R * R + row * R + column`` (all texels for a dense raster, or the texels
+holding view samples for the shadow map and IZB): per triangle, its texel bounding box
+row by row, and the keys of each row inside the box found by binary search. Counts are
+exact before any array is allocated; nothing is truncated.
+
+Distances to edges are measured in texels. A margin ``tau`` (texels) makes the inner
+test stricter and the outer test looser; ``rounding_margin`` sizes it from the data.
+Everything here is float64 NumPy set-up plus elementwise evaluation that runs in NumPy or
+under ``jax.jit`` (``xp``) in the dtype of its inputs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..scene.light_camera import LightCamera, LightFace
+
+MODES = ("standard", "inner", "outer")
+INNER_TESTS = ("corners", "circle")
+#: corner offsets of a texel relative to its lower corner (column, row)
+CORNERS = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0))
+HALF_DIAGONAL = math.sqrt(0.5)
+
+
+def homogeneous_matrix(face: LightFace) -> np.ndarray:
+    """float64 [3, 4]: world (x, y, z, 1) -> (u w, v w, w) of ``face`` (texel units).
+
+    ``u = h0 / h2``, ``v = h1 / h2`` equal ``face.project``'s texel coordinates (column,
+    row); ``w = h2`` is 1 (orthographic) or the depth along the view axis (perspective).
+    """
+    vp = face.view_projection
+    r = float(face.resolution[0])
+    return np.stack([0.5 * r * (vp[0] + vp[3]), 0.5 * r * (vp[3] - vp[1]), vp[3]])
+
+
+def face_depth(face: LightFace, depth: np.ndarray) -> np.ndarray:
+    """float64 [...]: ``delta`` of points at view-axis ``depth`` [...] (world units)."""
+    depth = np.asarray(depth, dtype=np.float64)
+    return depth if face.orthographic else -face.near / depth
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class FaceSetup:
+    """Per-triangle raster set-up on one face (all float64 NumPy).
+
+    Attributes:
+        edges: [T, 3, 3] rows ``A_i`` (a, b, c): ``A_i . (u, v, 1) >= 0`` inside edge i.
+        norms: [T, 3] ``|(a, b)|`` of each edge row (0 for an edge whose line is at
+            infinity, then the row is a constant sign).
+        depth: [T, 3] depth plane Z: ``delta_T(u, v) = Z . (u, v, 1)``.
+        bbox: int64 [T, 4] inclusive texel box (col0, col1, row0, row1), clamped to the
+            grid; empty (col0 > col1) for triangles covering nothing.
+        front: bool [T] all three vertices in front of the light (w > 0).
+        ok: bool [T] rasterizable (D != 0 and not entirely behind the light).
+        vertex_delta: [T, 3] delta of the vertices (meaningful where ``front``).
+        vertex_w: [T, 3] homogeneous w of the vertices; absdet: [T] |D|.
+        unit: [T, 3, 3] edge rows divided by their norms: ``unit_i . (u, v, 1)`` is the
+            signed distance to edge i in texels (+-inf constants for an edge at infinity).
+    """
+
+    edges: np.ndarray
+    norms: np.ndarray
+    depth: np.ndarray
+    bbox: np.ndarray
+    front: np.ndarray
+    ok: np.ndarray
+    vertex_delta: np.ndarray
+    vertex_w: np.ndarray
+    absdet: np.ndarray
+    unit: np.ndarray
+
+
+def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> FaceSetup:
+    """Raster set-up of world ``triangles`` [T, 3, 3] on ``face`` (float64).
+
+    Args:
+        pad: texels added around each bounding box (covers the outer test's margin).
+    """
+    tri = np.asarray(triangles, dtype=np.float64)
+    r = int(face.resolution[0])
+    m = homogeneous_matrix(face)
+    h = tri @ m[:, :3].T + m[:, 3]                                # [T, 3, 3] rows P_i
+    w = h[..., 2]
+    if face.orthographic:
+        w = np.ones_like(w)
+        h[..., 2] = 1.0
+        vdelta = tri @ face.forward - face.forward @ face.eye     # depth along the axis
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vdelta = -face.near / w
+    rows = np.stack([np.cross(h[:, (i + 1) % 3], h[:, (i + 2) % 3]) for i in range(3)], axis=1)
+    det = np.einsum("tk,tk->t", h[:, 0], rows[:, 0])
+    sign = np.where(det < 0, -1.0, 1.0)
+    edges = rows * sign[:, None, None]
+    absdet = np.abs(det)
+    front = np.all(w > 0, axis=1)
+    ok = (absdet > 0) & np.any(w > 0, axis=1)
+    kappa = vdelta * w if face.orthographic else np.full_like(w, -face.near)
+    safe = np.where(absdet > 0, absdet, 1.0)
+    depth = np.einsum("ti,tik->tk", kappa, edges) / safe[:, None]
+    norms = np.hypot(edges[..., 0], edges[..., 1])
+    bbox = np.empty((len(tri), 4), dtype=np.int64)
+    bbox[:] = (0, r - 1, 0, r - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = h[..., :2] / np.where(front[:, None], w, 1.0)[..., None]
+    lo = np.floor(uv.min(axis=1) - pad)
+    hi = np.floor(uv.max(axis=1) + pad)
+    f = front & ok
+    bbox[f, 0] = np.clip(lo[f, 0], 0, r - 1)
+    bbox[f, 1] = np.clip(hi[f, 0], -1, r - 1)
+    bbox[f, 2] = np.clip(lo[f, 1], 0, r - 1)
+    bbox[f, 3] = np.clip(hi[f, 1], -1, r - 1)
+    off = f & ((hi[:, 0] < 0) | (lo[:, 0] > r - 1) | (hi[:, 1] < 0) | (lo[:, 1] > r - 1))
+    bbox[off] = (1, 0, 1, 0)
+    for t in np.flatnonzero(ok & ~front):   # reaching behind the light: clip the grid
+        bbox[t] = _clipped_box(edges[t], norms[t], r, pad)
+    bbox[~ok] = (1, 0, 1, 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        unit = edges / norms[..., None]
+    flat = norms == 0
+    unit[flat] = 0.0
+    unit[..., 2] = np.where(flat, np.where(edges[..., 2] >= 0, np.inf, -np.inf), unit[..., 2])
+    return FaceSetup(edges, norms, depth, bbox, front, ok, vdelta, w, absdet, unit)
+
+
+def _clipped_box(edges: np.ndarray, norms: np.ndarray, r: int, pad: float) -> np.ndarray:
+    """Texel box of the grid square clipped by the three half-planes (each moved out by
+    ``pad`` texels), for triangles whose projection is unbounded."""
+    poly = [(0.0, 0.0), (r, 0.0), (r, r), (0.0, r)]
+    for (a, b, c), n in zip(edges, norms):
+        c = c + pad * n
+        out = []
+        for k, p in enumerate(poly):
+            q = poly[(k + 1) % len(poly)]
+            fp, fq = a * p[0] + b * p[1] + c, a * q[0] + b * q[1] + c
+            if fp >= 0:
+                out.append(p)
+            if (fp >= 0) != (fq >= 0):
+                s = fp / (fp - fq)
+                out.append((p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1])))
+        poly = out
+        if not poly:
+            return np.array([1, 0, 1, 0])
+    pts = np.array(poly)
+    lo = np.clip(np.floor(pts.min(axis=0)), 0, r - 1)
+    hi = np.clip(np.floor(pts.max(axis=0)), 0, r - 1)
+    return np.array([lo[0], hi[0], lo[1], hi[1]], dtype=np.int64)
+
+
+def texel_keys(face: np.ndarray, uv: np.ndarray, resolution: int) -> np.ndarray:
+    """int64 [N]: the texel key of points on ``face`` [N] at texel coordinates ``uv``
+    [N, 2] (the one texel function: floor, clamped to the grid)."""
+    r = int(resolution)
+    ij = np.clip(np.floor(uv), 0, r - 1).astype(np.int64)
+    return (np.asarray(face, dtype=np.int64) * r + ij[:, 1]) * r + ij[:, 0]
+
+
+def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
+               select: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(triangle, key index) pairs whose texel is in a triangle's box.
+
+    Args:
+        setups: one :class:`FaceSetup` per face (face f's keys start at f R R).
+        keys: int64 [K] sorted unique texel keys to rasterize over.
+        select: optional per-face bool [T] triangles to draw (default all).
+    Returns:
+        tri int64 [F], slot int64 [F] (index into ``keys``), sorted by triangle, face.
+    """
+    r = int(resolution)
+    tris, slots = [], []
+    for f, st in enumerate(setups):
+        b = st.bbox
+        use = (b[:, 0] <= b[:, 1]) & (b[:, 2] <= b[:, 3])
+        if select is not None:
+            use &= select[f]
+        t = np.flatnonzero(use)
+        nrows = b[t, 3] - b[t, 2] + 1
+        rt = np.repeat(t, nrows)
+        start = np.repeat(np.cumsum(nrows) - nrows, nrows)
+        row = b[rt, 2] + np.arange(len(rt)) - start
+        base = (f * r + row) * r
+        lo = np.searchsorted(keys, base + b[rt, 0], side="left")
+        hi = np.searchsorted(keys, base + b[rt, 1], side="right")
+        n = hi - lo
+        tt = np.repeat(rt, n)
+        first = np.repeat(np.cumsum(n) - n, n)
+        slots.append(np.repeat(lo, n) + np.arange(len(tt)) - first)
+        tris.append(tt)
+    return np.concatenate(tris).astype(np.int64), np.concatenate(slots).astype(np.int64)
+
+
+def _distance(values, norms, xp):
+    """Signed distance in texels; +-inf for an edge whose line is at infinity.
+    ``norms=None``: the rows are already unit rows (``FaceSetup.unit``)."""
+    if norms is None:
+        return values
+    safe = xp.where(norms > 0, norms, 1)
+    big = xp.where(values >= 0, xp.inf, -xp.inf)
+    return xp.where(norms > 0, values / safe, big)
+
+
+def coverage(edges, norms, col, row, mode: str, inner_test: str = "corners", tau=0.0,
+             xp=np):
+    """bool [F]: does the triangle of each fragment cover texel (col, row) in ``mode``?
+
+    Args:
+        edges: [F, 3, 3] edge rows of each fragment's triangle; norms: [F, 3] their
+            gradient lengths, or None when ``edges`` are unit rows (``FaceSetup.unit``);
+            col, row: int [F] texel.
+        mode: "standard" (centre, top-left rule), "inner" (closed square inside, at
+            least ``tau`` texels from every edge; ``inner_test`` "corners" or "circle"),
+            "outer" (closed square within ``tau`` texels of every edge's inside).
+        tau: margin in texels (scalar or [F]).
+
+    An edge function is affine, so its smallest and largest values over the square are
+    at corners: the centre value -+ (|a| + |b|) / 2 (one evaluation per edge).
+    """
+    a, b = edges[..., 0], edges[..., 1]
+    u = col.astype(edges.dtype)[:, None] + 0.5
+    v = row.astype(edges.dtype)[:, None] + 0.5
+    centre = a * u + b * v + edges[..., 2]
+    if mode == "standard":
+        top_left = (a > 0) | ((a == 0) & (b > 0))
+        return xp.all((centre > 0) | ((centre == 0) & top_left), axis=-1)
+    tau = xp.asarray(tau, dtype=edges.dtype)
+    tau = tau[:, None] if tau.ndim == 1 else tau
+    half = 0.5 * (xp.abs(a) + xp.abs(b))
+    if mode == "inner":
+        if inner_test == "corners":
+            return xp.all(_distance(centre - half, norms, xp) >= tau, axis=-1)
+        return xp.all(_distance(centre, norms, xp) >= HALF_DIAGONAL + tau, axis=-1)
+    if mode == "outer":
+        return xp.all(_distance(centre + half, norms, xp) >= -tau, axis=-1)
+    raise ValueError(f"light raster mode must be one of {MODES}, got {mode!r}")
+
+
+def depth_range(depth, col, row, xp=np):
+    """(min [F], max [F], centre [F]) of the depth plane [F, 3] over each texel square."""
+    a, b = depth[:, 0], depth[:, 1]
+    centre = a * (col.astype(depth.dtype) + 0.5) + b * (row.astype(depth.dtype) + 0.5) + depth[:, 2]
+    half = 0.5 * (xp.abs(a) + xp.abs(b))
+    return centre - half, centre + half, centre
+
+
+def program1_covered(edges, vertex_w, absdet, col, row, xp=np):
+    """bool [F]: the poster's Program 1 on screen-space barycentrics (front triangles).
+
+    The screen-space (noperspective) barycentrics gamma_i = w_i A_i . (u, v, 1) / |D| are
+    affine in (u, v) and sum to 1 (w_i the vertices' homogeneous w [F, 3], |D| [F]).
+    Program 1 keeps a texel when, at its centre, gamma_0 >= max(|a_0|, |b_0|), gamma_1 >=
+    max(|a_1|, |b_1|) and 1 - gamma_0 - gamma_1 >= max(|a_0 + a_1|, |b_0 + b_1|), with
+    a = dx + dy, b = dx - dy and dx, dy half the per-texel derivatives. Equal to the
+    corners test away from exact ties (the tests compare the two).
+    """
+    k = vertex_w / absdet[:, None]                          # [F, 3]
+    u = col.astype(edges.dtype) + 0.5
+    v = row.astype(edges.dtype) + 0.5
+    g = k * (edges[..., 0] * u[:, None] + edges[..., 1] * v[:, None] + edges[..., 2])
+    dx, dy = 0.5 * k * edges[..., 0], 0.5 * k * edges[..., 1]
+    a, b = dx + dy, dx - dy
+    ok0 = g[:, 0] >= xp.maximum(xp.abs(a[:, 0]), xp.abs(b[:, 0]))
+    ok1 = g[:, 1] >= xp.maximum(xp.abs(a[:, 1]), xp.abs(b[:, 1]))
+    ok2 = 1 - g[:, 0] - g[:, 1] >= xp.maximum(xp.abs(a[:, 0] + a[:, 1]), xp.abs(b[:, 0] + b[:, 1]))
+    return ok0 & ok1 & ok2
+
+
+def rasterize(camera: LightCamera, triangles: np.ndarray, mode: str,
+              inner_test: str = "corners", tau: float = 0.0, keys: np.ndarray | None = None,
+              dtype=np.float64, xp=np):
+    """All fragments of ``triangles`` [T, 3, 3] on ``camera`` in ``mode``.
+
+    Args:
+        keys: sorted texel keys to rasterize over (default every texel of every face).
+        dtype: evaluation dtype (the set-up is float64, then cast).
+    Returns:
+        tri int64 [N], key int64 [N] of the covered fragments, and the per-face set-ups.
+    """
+    r = int(camera.resolution[0])
+    if keys is None:
+        keys = np.arange(len(camera.faces) * r * r, dtype=np.int64)
+    setups = [setup_face(f, triangles) for f in camera.faces]
+    tri, slot = candidates(setups, keys, r)
+    key = keys[slot]
+    face = key // (r * r)
+    col, row = key % r, (key // r) % r
+    edges = np.stack([s.unit for s in setups])[face, tri].astype(dtype)
+    cov = np.asarray(coverage(edges, None, col, row, mode, inner_test, tau, xp=np))
+    return tri[cov], key[cov], setups
+
+
+def rounding_margin(dtype, points: np.ndarray, texel_world: float) -> float:
+    """Texels covering ``dtype`` rounding of world coordinates of magnitude ``points``:
+    ``64 eps max|x| / texel_world`` (``texel_world``: the smallest world size of a texel
+    at the points)."""
+    scale = float(np.abs(np.asarray(points, dtype=np.float64)).max(initial=1.0))
+    return 64.0 * float(np.finfo(dtype).eps) * scale / max(texel_world, 1e-300)
+
+
+def project_points(camera: LightCamera, points: np.ndarray):
+    """Light-space coordinates of world ``points`` [N, 3] (float64).
+
+    Returns:
+        face int32 [N], uv float64 [N, 2] (texel coordinates), key int64 [N] (the
+        texel, :func:`texel_keys`), delta float64 [N] (the face's depth convention).
+    """
+    face, uv, depth = camera.to_texels(points)
+    delta = np.empty(len(face))
+    for f in np.unique(face):
+        sel = face == f
+        delta[sel] = face_depth(camera.faces[f], depth[sel])
+    return face, uv, texel_keys(face, uv, camera.resolution[0]), delta
+
+
+def texel_world_size(camera: LightCamera, points: np.ndarray) -> np.ndarray:
+    """float64 [N]: world size of one texel at ``points`` [N, 3] (the texel side times
+    the depth on perspective faces)."""
+    face, _, depth = camera.to_texels(points)
+    size = np.array([f.texel_size for f in camera.faces])[face]
+    return size if camera.kind == "orthographic" else size * depth
+
+
+def fragment_arrays(setups: list[FaceSetup], tri: np.ndarray, key: np.ndarray, resolution: int,
+                    dtype=np.float64):
+    """Per-fragment unit edge rows [F, 3, 3], None (for ``coverage``'s ``norms``), depth
+    planes [F, 3] (``dtype``), and column, row int64 [F] of fragments (triangle ``tri``,
+    texel ``key``)."""
+    r = int(resolution)
+    if len(setups) == 1:
+        unit, depth = setups[0].unit[tri], setups[0].depth[tri]
+    else:
+        face = key // (r * r)
+        unit = np.stack([s.unit for s in setups])[face, tri]
+        depth = np.stack([s.depth for s in setups])[face, tri]
+    return (unit.astype(dtype, copy=False), None, depth.astype(dtype, copy=False), key % r,
+            (key // r) % r)

@@ -1,0 +1,231 @@
+"""The irregular z-buffer (``izb``) and the shadow map (``shadow_map``).
+
+izb: the lit mask equals the Embree reference (no unexplained mismatch) with and
+without the CSM prepass, in float32 and float64, on hard cases for the prepass
+(receivers in contact with casters, grazing light, sub-texel triangles, a point light
+inside the scene with a cube camera); the prepass never culls a lit sample
+(``csm_false_shadows == 0``); counter identities and the orderings that are identities
+(corners culls a superset of circle, the corner depth a superset of the slope depth, node
+culling never lengthens a list or adds tests). shadow_map: the depth map against rays
+cast from the light in a NumPy loop; bias reduces acne.
+"""
+
+import functools
+
+import numpy as np
+import pytest
+
+import shadowlab as sl
+from shadowlab.analysis.metrics import compare_hard
+from shadowlab.core.frame import view_samples
+from shadowlab.methods import MethodError
+from shadowlab.reference.boundary import unexplained_mismatches
+from shadowlab.scene import Scene
+from shadowlab.scene import primitives as prim
+from shadowlab.scene.light_camera import box_corners, fit_light_camera
+from shadowlab.structures import light_raster as lr
+
+RES = (40, 40)
+
+
+def _hard_scene():
+    """Ground grid, boxes resting on it (contact), one sunk box, a tilted quad, and a
+    cloud of sub-texel triangles."""
+    rng = np.random.default_rng(7)
+    parts = [prim.quad_grid((-4, 4), (-4, 4), 0.0, cells=6)]
+    parts.append(prim.boxes(np.array([[-2.0, 0.0, -1.0], [0.5, 0.0, 0.5], [1.5, -0.2, -2.5]]),
+                            np.array([[-1.0, 1.0, 0.0], [1.2, 0.4, 1.5], [2.5, 0.6, -1.5]])))
+    parts.append((np.array([[-3.0, 1.5, 1.0], [-1.0, 1.2, 1.0], [-1.0, 2.0, 3.0], [-3.0, 2.3, 3.0]]),
+                  np.array([[0, 1, 2], [0, 2, 3]])))
+    c = rng.uniform((-1, 0.8, -3), (1, 1.6, -1), (300, 3))
+    tiny = c[:, None, :] + rng.normal(0, 0.02, (300, 3, 3))
+    parts.append((tiny.reshape(-1, 3), np.arange(900).reshape(-1, 3)))
+    v, f = prim.merge(parts)
+    return Scene(v, f, np.zeros(len(f)), ("hard",), "hard")
+
+
+LIGHTS = {
+    "grazing": sl.DirectionalLight(direction=(1.0, -0.06, 0.3)),
+    "steep": sl.DirectionalLight(direction=(-0.3, -1.0, 0.4)),
+    "inside": sl.PointLight(position=(0.3, 2.6, -0.4)),
+    "above": sl.PointLight(position=(1.0, 9.0, 2.0)),
+}
+
+
+@functools.lru_cache(maxsize=None)
+def frame(light_name):
+    scene = _hard_scene()
+    cam = sl.Camera(eye=(6.0, 7.0, 8.0), target=(0.0, 0.3, -0.5), up=(0, 1, 0), fov_y_deg=50.0,
+                    near=0.1, far=100.0, resolution=RES)
+    gbuf = sl.render_gbuffer(scene, cam)
+    light = LIGHTS[light_name]
+    return scene, gbuf, light, sl.reference_shadows(scene, gbuf, light)
+
+
+def _run(light_name, precision, **options):
+    scene, gbuf, light, _ = frame(light_name)
+    return sl.compute_shadows(scene, gbuf, light, method="izb", precision=precision, **options)
+
+
+@pytest.mark.parametrize("light_name", ["grazing", "steep", "inside"])
+def test_izb_is_exact_and_the_prepass_conservative(light_name, precision):
+    scene, gbuf, light, truth = frame(light_name)
+    extra = {"projection": "cube"} if light_name == "inside" else {}
+    runs = {}
+    for opts in ({"prepass": "none"}, {"prepass": "csm"},
+                 {"prepass": "csm", "coverage": "circle", "csm_depth": "slope"}):
+        res = _run(light_name, precision, resolution=256, **opts, **extra)
+        bad = unexplained_mismatches(scene, gbuf, light, res.lit, truth)
+        assert len(bad) == 0, (opts, bad[:5])
+        c = res.counters
+        assert c["list_nodes"] == c["samples"] - c["csm_culled"]
+        assert c["tests"] == int(c["tests_per_pixel"].sum())
+        assert c["csm_culled"] == int(c["csm_culled_per_pixel"].sum())
+        if opts["prepass"] == "csm":
+            assert c["csm_false_shadows"] == 0
+        runs[tuple(sorted(opts.items()))] = res
+    none, csm, circle = runs.values()
+    assert np.array_equal(none.lit, csm.lit) and np.array_equal(none.lit, circle.lit)
+    assert csm.counters["tests"] <= none.counters["tests"]
+    assert csm.counters["list_length_max"] <= none.counters["list_length_max"]
+    assert csm.counters["lit"] < csm.counters["samples"]
+    if extra:
+        assert csm.counters["light_faces"] == 6
+    if light_name != "grazing":
+        assert csm.counters["csm_culled"] > 0
+
+
+def test_prepass_orderings_are_identities():
+    """circle culls a subset of corners; the slope depth a subset of the corner depth."""
+    for light_name in ("steep", "inside"):
+        runs = {}
+        for cov in ("corners", "circle"):
+            for depth in ("corner", "slope"):
+                res = _run(light_name, "float64", resolution=512, coverage=cov, csm_depth=depth)
+                runs[cov, depth] = res.counters["csm_culled_per_pixel"].astype(bool)
+                assert res.counters["csm_false_shadows"] == 0
+        assert runs["corners", "corner"].sum() > 0
+        assert not np.any(runs["circle", "corner"] & ~runs["corners", "corner"])
+        assert not np.any(runs["corners", "slope"] & ~runs["corners", "corner"])
+        assert not np.any(runs["circle", "slope"] & ~runs["circle", "corner"])
+
+
+@pytest.mark.parametrize("light_name", ["steep", "inside"])
+def test_a_finer_csm_culls_more_and_stays_exact(light_name, precision):
+    scene, gbuf, light, truth = frame(light_name)
+    extra = {"projection": "cube"} if light_name == "inside" else {}
+    one = _run(light_name, precision, resolution=256, **extra)
+    fine = _run(light_name, precision, resolution=256, csm_scale=4, **extra)
+    assert fine.counters["csm_false_shadows"] == 0
+    assert len(unexplained_mismatches(scene, gbuf, light, fine.lit, truth)) == 0
+    assert np.array_equal(one.lit, fine.lit)
+    assert fine.counters["csm_culled"] > one.counters["csm_culled"]
+    assert fine.counters["tests"] < one.counters["tests"]
+
+
+def test_csm_min_area_draws_fewer_casters_and_stays_conservative():
+    base = _run("steep", "float32", resolution=512).counters
+    prev = base["csm_culled_per_pixel"].astype(bool)
+    for area in (2.0, 50.0, 1e9):
+        c = _run("steep", "float32", resolution=512, csm_min_area=area).counters
+        culled = c["csm_culled_per_pixel"].astype(bool)
+        assert c["csm_false_shadows"] == 0 and not np.any(culled & ~prev)
+        prev = culled
+    assert base["csm_culled"] > 0 and c["csm_culled"] == 0 and c["csm_texels"] == 0
+
+
+def test_izb_refuses_the_prepass_with_the_cap_bias():
+    scene, gbuf, light, _ = frame("steep")
+    with pytest.raises(MethodError, match="prepass='csm' needs bias='receiver'"):
+        sl.compute_shadows(scene, gbuf, light, method="izb", bias="cap")
+    res = sl.compute_shadows(scene, gbuf, light, method="izb", bias="cap", prepass="none")
+    assert res.counters["csm_false_shadows"] == -1
+
+
+def _ray_depth_map(cam, tri, keys):
+    """Nearest delta hit by the light ray through each texel centre [K] (NumPy loop over
+    texels, vectorized over triangles; inf where nothing is hit)."""
+    r = cam.resolution[0]
+    face = cam.faces[0]
+    out = np.full(len(keys), np.inf)
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    for k, key in enumerate(keys):
+        uv = np.array([[key % r + 0.5, key // r + 0.5]])
+        if face.orthographic:
+            o, d = face.unproject(uv, np.array([0.0]))[0], face.forward
+        else:
+            o = face.eye
+            d = face.unproject(uv, np.array([1.0]))[0] - o
+        pv = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, pv)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tv = o - tri[:, 0]
+            u = np.einsum("ij,ij->i", tv, pv) / det
+            qv = np.cross(tv, e1)
+            v = (qv @ d) / det
+            t = np.einsum("ij,ij->i", e2, qv) / det
+        hit = (det != 0) & (u > 0) & (v > 0) & (u + v < 1) & (t > 0)
+        if hit.any():
+            p = o + t[hit, None] * d
+            _, depth = face.project(p)
+            out[k] = lr.face_depth(face, depth).min()
+    return out
+
+
+@pytest.mark.parametrize("light_name", ["steep", "above"])
+def test_shadow_map_lookup_matches_rays_from_the_light(light_name):
+    scene, gbuf, light, truth = frame(light_name)
+    res = sl.compute_shadows(scene, gbuf, light, method="shadow_map", resolution=512,
+                             bias="none", projection="perspective", precision="float64")
+    # rebuild the same light camera and compare each sample with the ray-cast map
+    samples = view_samples(gbuf, light)
+    cam = fit_light_camera(light, samples.position, casters=box_corners(scene.bounds),
+                           resolution=512, projection="auto" if light_name == "steep"
+                           else "perspective")
+    face, uv, key, delta = lr.project_points(cam, samples.position)
+    frac = uv - np.floor(uv)
+    # away from texel borders and exact ties: the map is the nearest ray hit
+    keep = np.all((frac > 0.02) & (frac < 0.98), axis=1)
+    keys, inv = np.unique(key[keep], return_inverse=True)
+    dmap = _ray_depth_map(cam, scene.triangles, keys)
+    expect = delta[keep] <= dmap[inv]
+    tie = np.abs(delta[keep] - dmap[inv]) <= 1e-9 * np.maximum(1, np.abs(delta[keep]))
+    got = res.lit.reshape(-1)[samples.index[keep]]
+    assert keep.sum() > 100
+    assert np.array_equal(got[~tie], expect[~tie])
+
+
+def test_shadow_map_refuses_a_perspective_face_around_the_light():
+    scene, gbuf, light, _ = frame("inside")
+    with pytest.raises(MethodError, match="projection='perspective'.*surround the light"):
+        sl.compute_shadows(scene, gbuf, light, method="shadow_map", projection="perspective")
+
+
+def test_shadow_map_bias_reduces_acne():
+    scene, gbuf, light, truth = frame("steep")
+    errors = {}
+    for bias in ("none", "slope", "constant", "normal"):
+        res = sl.compute_shadows(scene, gbuf, light, method="shadow_map", resolution=2048,
+                                 bias=bias)
+        errors[bias] = compare_hard(res.lit, truth, gbuf.valid)
+    assert errors["none"]["false_shadow"] > 10 * max(1, errors["slope"]["false_shadow"])
+    for bias in ("slope", "constant", "normal"):
+        assert errors[bias]["mismatch_fraction"] < 0.1 * errors["none"]["mismatch_fraction"]
+    pcf = sl.compute_shadows(scene, gbuf, light, method="shadow_map", resolution=2048, pcf=True)
+    assert compare_hard(pcf.lit, truth, gbuf.valid)["mismatch_fraction"] < 0.05
+
+
+@pytest.mark.parametrize("name", ["gate", "soup", "sphere_grid", "terrain", "fuzzy", "blobs"])
+def test_prepass_is_conservative_on_every_procedural_scene(name, precision):
+    from shadowlab.scene.procedural import default_view
+
+    params = {"soup": {"count": 60}, "fuzzy": {"triangles": 3000},
+              "sphere_grid": {"n": 3, "triangles_per_sphere": 200}}.get(name, {})
+    scene = sl.load_scene(name, **params)
+    view = default_view(name, scene, **params)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(24, 24)))
+    truth = sl.reference_shadows(scene, gbuf, view.light)
+    res = sl.compute_shadows(scene, gbuf, view.light, method="izb", precision=precision,
+                             resolution=1024)
+    assert res.counters["csm_false_shadows"] == 0
+    assert len(unexplained_mismatches(scene, gbuf, view.light, res.lit, truth)) == 0

@@ -1,0 +1,252 @@
+"""The light-space rasterizer against plain NumPy loops over (triangle, texel).
+
+The references are independent of the homogeneous edge functions: world-space rays
+from the light (or along an orthographic face's axis) through texel points tested
+against the triangle (Moller-Trumbore in float64), and a separating-axis overlap test of
+projected triangles and texel squares. float32 and float64 evaluation, NumPy and jit.
+"""
+
+import functools
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import shadowlab as sl
+from shadowlab.scene.light_camera import fit_light_camera
+from shadowlab.structures import light_raster as lr
+
+R = 16
+
+
+def _hits(origin, direction, tri):
+    """bool: the line origin + t direction, t > 0, meets the closed triangle (float64)."""
+    e1, e2 = tri[1] - tri[0], tri[2] - tri[0]
+    pv = np.cross(direction, e2)
+    det = e1 @ pv
+    if det == 0:
+        return False
+    tv = origin - tri[0]
+    u = (tv @ pv) / det
+    qv = np.cross(tv, e1)
+    v = (direction @ qv) / det
+    t = (e2 @ qv) / det
+    return u >= 0 and v >= 0 and u + v <= 1 and t > 0
+
+
+def _ray(face, uv):
+    """Origin and direction of the light ray through texel point ``uv`` [2]."""
+    if face.orthographic:
+        p = face.unproject(np.array([uv]), np.array([0.0]))[0]
+        return p, face.forward
+    p = face.unproject(np.array([uv]), np.array([1.0]))[0]
+    return face.eye, p - face.eye
+
+
+def _frame(kind, seed):
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-1, 1, (30, 3))
+    tri = centres[:, None, :] + rng.normal(0, 0.7, (30, 3, 3))
+    if kind == "ortho":
+        light = sl.DirectionalLight(direction=(0.3, -1.0, 0.2))
+        cam = fit_light_camera(light, tri.reshape(-1, 3), resolution=R)
+    else:
+        light = sl.PointLight(position=(0.2, 1.3, 0.1))
+        grid = rng.uniform(-1, 1, (50, 3)) * (1, 0, 1) + (0, -1.0, 0)
+        cam = fit_light_camera(light, grid, resolution=R, projection="perspective")
+        # a few triangles reaching behind the light and one entirely behind it
+        tri[:3, 0] = light.position + (0, 0.8, 0) + rng.normal(0, 0.2, (3, 3))
+        tri[3] = light.position + (0, 0.5, 0) + rng.normal(0, 0.2, (3, 3))
+    return cam, tri
+
+
+def _cross2(a, b):
+    return a[0] * b[1] - a[1] * b[0]
+
+
+@functools.lru_cache(maxsize=None)
+def _cached_reference(kind, seed, mode, test):
+    cam, tri = _frame(kind, seed)
+    return _reference(cam, tri, mode, test)
+
+
+def _reference(cam, tri, mode, test):
+    """set of (triangle, key) by the loop."""
+    out = set()
+    face = cam.faces[0]
+    for t, (j, i) in itertools.product(range(len(tri)), itertools.product(range(R), range(R))):
+        key = j * R + i
+        if mode == "standard":
+            ok = _hits(*_ray(face, (i + 0.5, j + 0.5)), tri[t])
+        elif test == "corners":
+            ok = all(_hits(*_ray(face, (i + du, j + dv)), tri[t]) for du, dv in lr.CORNERS)
+        else:
+            uv, depth = face.project(tri[t])
+            if np.any(depth <= 0):
+                continue
+            c = np.array([i + 0.5, j + 0.5])
+            area = _cross2(uv[1] - uv[0], uv[2] - uv[0])
+            ok = True
+            for k in range(3):
+                a, b = uv[k], uv[(k + 1) % 3]
+                d = _cross2(b - a, c - a) / np.linalg.norm(b - a)
+                ok &= np.sign(area) * d >= np.sqrt(0.5)
+        if ok:
+            out.add((t, key))
+    return out
+
+
+@pytest.mark.parametrize("kind", ["ortho", "persp"])
+def test_standard_and_inner_modes_match_loops(kind, precision):
+    dtype = np.float64 if precision == "float64" else np.float32
+    cam, tri = _frame(kind, 1)
+    for mode, test in [("standard", "corners"), ("inner", "corners"), ("inner", "circle")]:
+        t, k, setups = lr.rasterize(cam, tri, mode, test, dtype=dtype)
+        got = set(zip(t.tolist(), k.tolist()))
+        ref = _cached_reference(kind, 1, mode, test)
+        if test == "circle":  # the loop's circle test handles front triangles only
+            got = {(a, b) for a, b in got if setups[0].front[a]}
+        assert len(ref) > 5, (mode, test)
+        # rounding (float32 evaluation) may move an exact tie; none is expected here
+        assert got == ref, (mode, test, len(got ^ ref))
+    # the triangle entirely behind the point light covers nothing
+    if kind == "persp":
+        assert not np.any(t == 3)
+
+
+def test_circle_implies_corners_and_program1_equals_corners():
+    for kind, seed in [("ortho", 2), ("persp", 3)]:
+        cam, tri = _frame(kind, seed)
+        tri = tri * 3.0  # larger triangles: more fully covered texels
+        c_t, c_k, st = lr.rasterize(cam, tri, "inner", "corners", tau=1e-6)
+        h_t, h_k, _ = lr.rasterize(cam, tri, "inner", "circle", tau=1e-6)
+        corners = set(zip(c_t.tolist(), c_k.tolist()))
+        circle = set(zip(h_t.tolist(), h_k.tolist()))
+        assert circle <= corners and len(corners) > len(circle) > 0
+        # Program 1 on every centre-covered texel of a front triangle
+        s_t, s_k, _ = lr.rasterize(cam, tri, "standard")
+        s = st[0]
+        keep = s.front[s_t]
+        s_t, s_k = s_t[keep], s_k[keep]
+        p1 = lr.program1_covered(s.edges[s_t], s.vertex_w[s_t], s.absdet[s_t], s_k % R, s_k // R)
+        mine = lr.coverage(s.edges[s_t], s.norms[s_t], s_k % R, s_k // R, "inner", "corners")
+        assert np.array_equal(p1, mine) and p1.sum() > 0
+
+
+def _sat_overlap(uv, i, j, grow):
+    """Closed projected triangle uv [3, 2] meets the texel square grown by ``grow``."""
+    sq = np.array([[i - grow, j - grow], [i + 1 + grow, j - grow], [i + 1 + grow, j + 1 + grow],
+                   [i - grow, j + 1 + grow]])
+    axes = [np.array([1.0, 0.0]), np.array([0.0, 1.0])]
+    axes += [np.array([-(uv[(k + 1) % 3] - uv[k])[1], (uv[(k + 1) % 3] - uv[k])[0]]) for k in range(3)]
+    for ax in axes:
+        a, b = uv @ ax, sq @ ax
+        if a.max() < b.min() or b.max() < a.min():
+            return False
+    return True
+
+
+@pytest.mark.parametrize("kind", ["ortho", "persp"])
+def test_outer_mode_is_conservative_and_tight(kind, precision):
+    dtype = np.float64 if precision == "float64" else np.float32
+    cam, tri = _frame(kind, 4)
+    t, k, setups = lr.rasterize(cam, tri, "outer", tau=1e-3, dtype=dtype)
+    got = set(zip(t.tolist(), k.tolist()))
+    face = cam.faces[0]
+    n_front = 0
+    for ti in range(len(tri)):
+        uv, depth = face.project(tri[ti])
+        if np.any(depth <= 0):
+            # a triangle through the light plane: every standard fragment is an outer one
+            st_t, st_k, _ = lr.rasterize(cam, tri[ti:ti + 1], "standard")
+            assert {(ti, x) for x in st_k.tolist()} <= got
+            continue
+        n_front += 1
+        for j, i in itertools.product(range(R), range(R)):
+            inside = _sat_overlap(uv, i, j, 0.0)
+            if inside:
+                assert (ti, j * R + i) in got
+            if (ti, j * R + i) in got:
+                assert _sat_overlap(uv, i, j, 1.0)  # at most the one-texel box padding
+    assert n_front > 20
+
+
+def test_jit_equals_numpy():
+    cam, tri = _frame("persp", 5)
+    setups = [lr.setup_face(f, tri) for f in cam.faces]
+    keys = np.arange(R * R)
+    t, slot = lr.candidates(setups, keys, R)
+    col, row = keys[slot] % R, keys[slot] // R
+    e, n = setups[0].edges[t].astype(np.float32), setups[0].norms[t].astype(np.float32)
+    for mode in ("standard", "inner", "outer"):
+        ref = lr.coverage(e, n, col, row, mode, tau=1e-3)
+        fn = jax.jit(lambda e, n, c, r, mode=mode: lr.coverage(e, n, c, r, mode, tau=1e-3, xp=jnp))
+        assert np.array_equal(np.asarray(fn(e, n, col, row)), ref)
+
+
+def test_depth_plane_matches_the_ray_hit_and_bounds_the_square():
+    for kind in ("ortho", "persp"):
+        cam, tri = _frame(kind, 6)
+        face = cam.faces[0]
+        t, k, setups = lr.rasterize(cam, tri, "standard")
+        s = setups[0]
+        col, row = k % R, k // R
+        lo, hi, centre = lr.depth_range(s.depth[t], col, row)
+        for x in range(0, len(t), max(1, len(t) // 40)):
+            o, d = _ray(face, (col[x] + 0.5, row[x] + 0.5))
+            tt = tri[t[x]]
+            n = np.cross(tt[1] - tt[0], tt[2] - tt[0])
+            hit = o + d * ((tt[0] - o) @ n) / (d @ n)
+            _, depth = face.project(hit[None])
+            assert np.isclose(lr.face_depth(face, depth)[0], centre[x], rtol=1e-9, atol=1e-9)
+            assert lo[x] <= centre[x] <= hi[x]
+
+
+def _texel_space_edges(uv):
+    """Edge rows [1, 3, 3] and norms [1, 3] of a triangle given in texel space [3, 2]
+    (orthographic: P_i = (u_i, v_i, 1)), oriented inside-positive."""
+    p = np.concatenate([np.asarray(uv, float), np.ones((3, 1))], axis=1)
+    rows = np.stack([np.cross(p[(i + 1) % 3], p[(i + 2) % 3]) for i in range(3)])
+    rows *= np.sign(np.linalg.det(p))
+    return rows[None], np.hypot(rows[:, 0], rows[:, 1])[None]
+
+
+def test_exact_analytic_right_triangle_on_texel_corners():
+    """Triangle (1,1), (5.5,1), (1,5.5): legs exactly on texel borders (exact ties),
+    hypotenuse u + v = 6.5 through texel centres' diagonals."""
+    e, n = _texel_space_edges([(1, 1), (5.5, 1), (1, 5.5)])
+    ij = np.array([(i, j) for j in range(8) for i in range(8)])
+    col, row = ij[:, 0], ij[:, 1]
+    ee, nn = np.repeat(e, len(ij), 0), np.repeat(n, len(ij), 0)
+    cov = {m: {tuple(x) for x in ij[lr.coverage(ee, nn, col, row, m)]}
+           for m in ("inner", "outer", "standard")}
+    circle = {tuple(x) for x in ij[lr.coverage(ee, nn, col, row, "inner", "circle")]}
+    # the closed square inside: i, j >= 1 (corners on the legs count) and the far corner
+    # (i + 1) + (j + 1) <= 6.5
+    assert cov["inner"] == {(i, j) for i, j in ij if i >= 1 and j >= 1 and i + j <= 4}
+    # circle: the centre at least sqrt(2)/2 from every edge: i + 0.5 - 1 >= 0.707 and
+    # (6.5 - i - j - 1) / sqrt(2) >= 0.707
+    assert circle == {(2, 2)}
+    # every texel whose closed square meets the closed triangle is an outer fragment
+    touching = {(i, j) for i, j in ij if i <= 5 and j <= 5 and i + j <= 6}
+    assert touching <= cov["outer"]
+    assert cov["outer"] - touching <= {(6, 0), (0, 6)}   # beyond the acute vertices only
+    # centres inside: i, j >= 1 and i + j + 1 < 6.5
+    assert cov["standard"] == {(i, j) for i, j in ij if i >= 1 and j >= 1 and i + j <= 5}
+
+
+def test_top_left_rule_covers_a_shared_edge_centre_once():
+    """Two triangles sharing the diagonal u = v through texel centres: each centre on it
+    belongs to exactly one of them."""
+    ij = np.array([(i, j) for j in range(6) for i in range(6)])
+    col, row = ij[:, 0], ij[:, 1]
+    hits = []
+    for tri in ([(0, 0), (6, 0), (6, 6)], [(0, 0), (6, 6), (0, 6)]):
+        e, n = _texel_space_edges(tri)
+        hits.append(lr.coverage(np.repeat(e, len(ij), 0), np.repeat(n, len(ij), 0), col, row,
+                                "standard"))
+    diag = col == row
+    assert np.all(hits[0][diag] ^ hits[1][diag])
+    assert np.all(hits[0] | hits[1])
