@@ -162,12 +162,13 @@ CLAIMS: tuple[Claim, ...] = (
     # ---------------------------------------------------------------- Mora et al. 2016
     Claim("m16.fig3.front_point", "M16", "Fig. 3, Sec. 3.3",
           "A point in front of every occluder (closer to the light) is lit; PSV must visit "
-          "the whole tree to prove it, the depth test skips the subtrees",
-          kind="qualitative", pending="unit test from the paper's example to be added"),
+          "the tree to prove it, the depth test stops at the root volume",
+          kind="qualitative", tested_by="tests/test_psv_paper_examples.py::test_fig3_point_in_front"),
     Claim("m16.fig4.stackless_path", "M16", "Fig. 4, Sec. 3.4",
-          "The stackless query visits the same nodes as the stack query, jumping back to "
-          "the first intersection ancestor instead of popping a stack",
-          kind="qualitative", pending="unit test from the paper's example to be added"),
+          "The stackless query answers like the stack query without a stack, jumping back "
+          "along ancestor links; the hybrid switches to it when its short stack is full and "
+          "otherwise visits exactly D-PSV's nodes",
+          kind="qualitative", tested_by="tests/test_psv_paper_examples.py::test_fig4_stackless_path"),
     Claim("m16.fig5.stack_low", "M16", "Fig. 5, Sec. 3.5",
           "PSV's stack usage stays below half of its size (16 of 32) for most image points "
           "and comes close to the maximum only in a few places",
