@@ -239,8 +239,7 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("m16.sec4_4.random_order", "M16", "Sec. 4.4",
           "The randomised insertion order keeps TOP trees from becoming unbalanced "
           "(after Gerhards et al. 2015)",
-          kind="qualitative", experiments=("psv_insertion_order",),
-          pending="psv_insertion_order measures depth against order but records no claim yet"),
+          kind="qualitative", experiments=("psv_insertion_order",)),
     # ---------------------------------------------------------------- Pečiva et al. 2013
     Claim("p13.exact_nonmanifold", "P13", "Abstract, Sec. 1",
           "Silhouette shadow volumes give per-sample exact shadows for arbitrary "
