@@ -104,7 +104,11 @@ def main(res: int = 128) -> None:
     print(f"{scene.num_triangles} triangles, {res}x{res}, {int(gbuf.valid.sum())} valid, "
           f"{int(steep.sum())} at discontinuities; auto z bits {auto}")
     print(f"{'configuration':<28} {'tests':>9} {'ratio':>6} {'leafvis':>8} {'t/leaf':>7} "
-          f"{'nodetests':>10} {'at disc.':>9} {'elsewhere':>9} {'mism':>5}")
+          f"{'nodetests':>10} {'at disc.':>9} {'elsewhere':>9} {'mism':>5} {'clus/tile':>9}")
+    h, w = gbuf.shape
+    occ = np.zeros((-(-h // 8), -(-w // 8)), bool)
+    yy, xx = np.nonzero(gbuf.valid)
+    occ[yy // 8, xx // 8] = True
     base = None
     for label, method, opts in CONFIGS:
         opts = dict(opts)
@@ -117,7 +121,8 @@ def main(res: int = 128) -> None:
         mism = int(np.count_nonzero((r.lit != truth) & gbuf.valid))
         print(f"{label:<28} {c['tests']:>9} {c['tests'] / base:>6.2f} {c['leaf_visits']:>8} "
               f"{c['tests'] / max(c['leaf_visits'], 1):>7.1f} {c['node_tests']:>10} "
-              f"{tp[steep].sum():>9} {tp[gbuf.valid & ~steep].sum():>9} {mism:>5}")
+              f"{tp[steep].sum():>9} {tp[gbuf.valid & ~steep].sum():>9} {mism:>5} "
+              f"{c['clusters'] / occ.sum() if method == 'clustered_ptsv' else 0:>9.2f}")
 
 
 if __name__ == "__main__":
