@@ -22,6 +22,8 @@
 # - `+culling planes`: implicit bounds and the three per-vertex culling planes;
 # - `+explicit bounds`: explicit (min / max) node boxes and the culling planes;
 # - `+two passes` (Fig. 8 only): the same, traversed in two passes;
+# - `silhouette planes`: explicit bounds with PTSV's 2D silhouette planes instead of the
+#   per-vertex ones (the head-to-head of the two plane sets on the same tree);
 # - `ptsv`: the 2011 baseline (2D tile tree with depth ranges, silhouette planes);
 # - `exact clustered`, `exact ptsv`: both methods' defaults (exact; light-facing samples).
 #
@@ -55,6 +57,8 @@ VARIANTS = {
     "+explicit bounds": ("clustered_ptsv", dict(_C, bounds="explicit", culling_planes=True)),
     "+two passes": ("clustered_ptsv", dict(_C, bounds="explicit", culling_planes=True,
                                            passes=2, expand_level=3)),
+    "silhouette planes": ("clustered_ptsv", dict(_C, bounds="explicit", culling_planes=True,
+                                                 plane_set="silhouette")),
     "ptsv": ("ptsv", dict(_P)),
     "exact clustered": ("clustered_ptsv", dict()),
     "exact ptsv": ("ptsv", dict()),
@@ -179,7 +183,7 @@ def plot(arrays: dict):
         ax2.set_ylabel("share of 8x4 tiles with depth ratio > 2", color="0.5", fontsize=8)
         ax = axes[1, i]
         for key in variants:
-            if "ptsv" in key or key in EXACT:
+            if "ptsv" in key or key in EXACT or key == "silhouette planes":
                 continue
             v = variants.index(key)
             ax.plot(arrays["frames"], 1000 * arrays["traverse_seconds"][i, v], label=key)
@@ -251,6 +255,14 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
         out.append(measured("s14.fig8.culling_faster",
                             f"median traversal {1e3 * t_cull:.1f} ms with planes vs "
                             f"{1e3 * t_base:.1f} ms without", t_cull < t_base,
+                            label=str(name)))
+    sil = variants.index("silhouette planes")
+    for i, name in enumerate(arrays["scenes"]):
+        r = tests[i, ex].sum() / max(tests[i, sil].sum(), 1)
+        rn = arrays["node_tests"][i, ex].sum() / max(arrays["node_tests"][i, sil].sum(), 1)
+        out.append(measured("s14.fig6.vs_silhouette_planes",
+                            f"per-vertex / silhouette planes on the explicit tree: "
+                            f"test-and-sets {r:.2f}, node tests {rn:.2f}", r < 1,
                             label=str(name)))
     for name in cfg.get("gain_scenes", []):
         i = list(arrays["scenes"]).index(name)

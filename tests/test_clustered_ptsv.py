@@ -86,8 +86,9 @@ def test_ptsv_equals_reference(opts):
         assert _mismatches(res, truth, gbuf) == 0, (name, opts)
 
 
-def test_full_depth_buffer_build_and_paper_options():
-    """tree_samples="all" (the 2011 build over every valid pixel) is exact, tests the
+def test_full_depth_buffer_build_plane_sets_and_paper_options():
+    """Both plane sets are exact on both trees (plane_set, the head-to-head of Fig. 6);
+    tree_samples="all" (the 2011 build over every valid pixel) is exact, tests the
     light-averted samples too (so needs more test-and-sets than the light-facing build)
     and leaves them unlit; the papers' configuration (PAPER_OPTIONS) equals brute force
     up to lost shadows (front-face culling of the light-facing side drops them where a
@@ -100,7 +101,11 @@ def test_full_depth_buffer_build_and_paper_options():
     assert _mismatches(full, truth, gbuf) == 0
     assert full.counters["samples"] == int(gbuf.valid.sum()) > facing.counters["samples"]
     assert full.counters["tests"] > facing.counters["tests"]
-    for method in ("clustered_ptsv", "ptsv"):
+    for method in ("clustered_ptsv", "ptsv"):            # either plane set on either tree
+        for plane_set in ("per_vertex", "silhouette"):
+            res = sl.compute_shadows(scene, gbuf, light, method=method, plane_set=plane_set)
+            assert _mismatches(res, truth, gbuf) == 0, (method, plane_set)
+            assert res.counters["extra_plane_rejects"] > 0
         res = sl.compute_shadows(scene, gbuf, light, method=method, **PAPER_OPTIONS[method])
         bad = (res.lit != truth) & gbuf.valid
         assert not np.any(bad & ~res.lit), method            # never a false shadow

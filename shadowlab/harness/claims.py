@@ -91,8 +91,7 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("s14.fig6.vs_silhouette_planes", "S14", "Sec. 2 (triangle setup), Fig. 6",
           "The new per-vertex culling planes remove more false positives than PTSV's 2D "
           "silhouette planes",
-          pending="needs a head-to-head run of both plane sets on the same tree "
-                  "(an option of clustered_ptsv that does not exist yet)"),
+          experiments=("clustered_animation",)),
     Claim("s14.fig7.one_pass_peak", "S14", "Fig. 7",
           "In one pass a few jobs (triangles) need about 10x the average number of "
           "traversal iterations",

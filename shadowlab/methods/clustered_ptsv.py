@@ -392,6 +392,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                          cull_side: str = "averted", bias_reject: bool = False,
                          leaf_samples: str = "tile", z_bits: int = 0,
                          depth_slices: str = "clamp", tree_samples: str = "facing",
+                         plane_set: str = "own",
                          method: str = "clustered_ptsv", options: dict | None = None):
     """The whole pipeline for ``kind`` = "cluster" (2014) or "ptsv" (2011).
 
@@ -443,7 +444,9 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             tiles, table, slot = sst["tiles"], sst["table"], sst["slot"]
             jax.block_until_ready((hier.lo, tiles))
         with timer.stage("setup"):
-            extra = ("silhouette" if kind == "ptsv" else "culling") if culling_planes else "none"
+            own = "silhouette" if kind == "ptsv" else "culling"
+            extra = (own if plane_set == "own" else PLANE_SETS[plane_set]) \
+                if culling_planes else "none"
             inv_view = jnp.asarray(np.linalg.inv(camera.view_matrix()).astype(dtype))
             g, tol = post_perspective_planes(planes.reshape(-1, 4, 4), inv_view, sst["qmax"],
                                              sst["pmax"], extra=extra, p00=tree.p00,
@@ -544,6 +547,9 @@ PAPER_OPTIONS = {
 }
 
 
+#: option ``plane_set`` -> the extra rows of ``post_perspective_planes``
+PLANE_SETS = {"per_vertex": "culling", "silhouette": "silhouette"}
+
 BOOL = (True, False)
 COMMON_TRAVERSAL_OPTIONS = {
     "bias": Option("receiver", "self-shadowing bias: 'receiver' (as the reference) or 'cap' "
@@ -570,6 +576,10 @@ COMMON_TRAVERSAL_OPTIONS = {
                           "surface)", allowed=BOOL),
     "leaf_samples": Option("tile", "at a leaf test every sample of the tile (paper) or only "
                            "the samples of that cluster", allowed=("tile", "cluster")),
+    "plane_set": Option("own", "which extra culling planes: the method's own ('own': 2014 "
+                        "per-vertex planes for clustered_ptsv, 2D silhouette edges for ptsv), "
+                        "or either set on either tree for a head-to-head comparison",
+                        allowed=("own", "per_vertex", "silhouette")),
     "tree_samples": Option("facing", "samples the tree is built over and tested at the "
                            "leaves: the valid light-facing ones ('facing', tighter bounds) or "
                            "every valid pixel ('all': the 2011 full depth buffer; the others "
