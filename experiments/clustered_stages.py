@@ -40,6 +40,7 @@ from shadowlab.methods.clustered_ptsv import PAPER_OPTIONS
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view, refit_clip
 from shadowlab.scene.view import Animation
+from shadowlab.structures.cluster_hierarchy import cluster_layout
 
 STAGES = ("samples", "setup", "build", "traverse", "merge")
 
@@ -87,6 +88,7 @@ def run(cfg: dict) -> dict:
     out = {"stages": np.zeros(shape + (len(STAGES),)), "total": np.zeros(shape),
            "ptsv_build": np.zeros(shape), "embree": np.zeros(shape),
            "nodes": np.zeros(shape, np.int64), "hierarchy_bytes": np.zeros(shape, np.int64),
+           "saturated": np.zeros(shape, np.int64), "z_bits": np.zeros(len(res_list), np.int64),
            "unexplained": np.zeros(shape + (2,), np.int64),
            "valid_pixels": np.zeros(shape, np.int64),
            **{f"{k}_total": np.zeros(shape) for k in OTHERS}}
@@ -106,6 +108,8 @@ def run(cfg: dict) -> dict:
             out["total"][i, f] = t["total"]
             out["nodes"][i, f] = r.counters["hierarchy_nodes"]
             out["hierarchy_bytes"][i, f] = r.counters["hierarchy_bytes"]
+            out["saturated"][i, f] = r.counters["saturated_samples"]
+            out["z_bits"][i] = cluster_layout(view.camera).bits[2]
             for key, (method, opts) in OTHERS.items():
                 ro, to = _median_run(scene, gbuf, view.light, method, repeats,
                                      **dict(opts, precision=prec))
@@ -219,6 +223,11 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
     cf = float(np.median(total[sq] / arrays["full_storage_total"][sq]))
     out.append(measured("s14.sec3.compact_5pct", f"{lab(sq)}: compact / full {cf:.2f}x",
                         cf <= 1.05))
+    sat = arrays["saturated"]
+    out.append(measured("s14.sec2.z_bits",
+                        ", ".join(f"{lab(i)}: {int(arrays['z_bits'][i])} z bits, "
+                                  f"{int(sat[i].max())} samples beyond the last slice"
+                                  for i in range(len(res))), sat.sum() == 0))
     mb = arrays["hierarchy_bytes"].max(axis=1) / 2**20
     out.append(measured("s14.sec3.memory",
                         ", ".join(f"{lab(i)}: {mb[i]:.1f} MB" for i in range(len(res)))
