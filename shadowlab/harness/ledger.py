@@ -116,6 +116,11 @@ def rows(runs: dict[str, dict]) -> list[dict]:
             verdict = _verdict([c for _, c in found])
             notes = [c["note"] for _, c in found if c.get("note")]
             why = "; ".join(notes) if notes else (claim.explain if verdict != "holds" else "")
+            if verdict != "holds" and not why:
+                ci = any(runs[n].get("size") != "full" for n, _ in found)
+                why = ("no cause recorded; a CI-size run (small scene, timings of a few ms on "
+                       "a shared machine): see the full-size run" if ci else
+                       "no cause recorded yet")
         else:
             measured, run = "-", "-"
             verdict = "unit test" if claim.tested_by else "not measured"
