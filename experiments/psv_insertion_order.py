@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 import shadowlab as sl
+from shadowlab.harness.claims import measured
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.methods import psv as psvm
 from shadowlab.core.frame import precision_mode, view_samples
@@ -130,6 +131,23 @@ def check(arrays: dict, cfg: dict) -> None:
     assert np.all(st[..., sn.index("tree_depth_mean")] <= st[..., sn.index("tree_depth")])
     assert np.all(merged + st[..., sn.index("dropped_triangles")] <= arrays["triangles"][:, None])
     assert np.all(arrays["visited"][..., 1] <= arrays["visited"][..., 0] + 1e-9)
+
+
+def claims(arrays: dict, cfg: dict) -> list[dict]:
+    """Mora et al. 2016, Sec. 4.4 (after Gerhards et al. 2015): a random insertion order
+    keeps the TOP tree balanced: per scene, the deepest tree over the random seeds is no
+    deeper than the tree in mesh order."""
+    sn = list(arrays["stat_names"])
+    depth = arrays["stats"][..., sn.index("tree_depth")]
+    n_random = len(cfg.get("seeds", [0, 1, 2]))
+    out = []
+    for i, name in enumerate(arrays["scenes"]):
+        rnd, mesh, dist = depth[i, :n_random], depth[i, n_random], depth[i, n_random + 1]
+        out.append(measured("m16.sec4_4.random_order",
+                            f"tree depth: random {int(rnd.min())}-{int(rnd.max())}, mesh order "
+                            f"{int(mesh)}, nearest-first {int(dist)}", rnd.max() <= mesh,
+                            label=str(name)))
+    return out
 
 
 # %%

@@ -86,6 +86,32 @@ def test_ptsv_equals_reference(opts):
         assert _mismatches(res, truth, gbuf) == 0, (name, opts)
 
 
+def test_full_depth_buffer_build_plane_sets_and_paper_options():
+    """Both plane sets are exact on both trees (plane_set, the head-to-head of Fig. 6);
+    tree_samples="all" (the 2011 build over every valid pixel) is exact, tests the
+    light-averted samples too (so needs more test-and-sets than the light-facing build)
+    and leaves them unlit; the papers' configuration (PAPER_OPTIONS) equals brute force
+    up to lost shadows (front-face culling of the light-facing side drops them where a
+    receiver lies within the bias inside a closed object; never a false shadow)."""
+    from shadowlab.methods.clustered_ptsv import PAPER_OPTIONS
+
+    scene, gbuf, light, truth = _setup("gate")
+    facing = sl.compute_shadows(scene, gbuf, light, method="ptsv")
+    full = sl.compute_shadows(scene, gbuf, light, method="ptsv", tree_samples="all")
+    assert _mismatches(full, truth, gbuf) == 0
+    assert full.counters["samples"] == int(gbuf.valid.sum()) > facing.counters["samples"]
+    assert full.counters["tests"] > facing.counters["tests"]
+    for method in ("clustered_ptsv", "ptsv"):            # either plane set on either tree
+        for plane_set in ("per_vertex", "silhouette"):
+            res = sl.compute_shadows(scene, gbuf, light, method=method, plane_set=plane_set)
+            assert _mismatches(res, truth, gbuf) == 0, (method, plane_set)
+            assert res.counters["extra_plane_rejects"] > 0
+        res = sl.compute_shadows(scene, gbuf, light, method=method, **PAPER_OPTIONS[method])
+        bad = (res.lit != truth) & gbuf.valid
+        assert not np.any(bad & ~res.lit), method            # never a false shadow
+        assert res.counters["front_face_culled"] > 0
+
+
 def test_face_culling_sides_with_receivers_inside_closed_objects():
     """The gate's parts touch and interpenetrate (bars in the lintel, rails in the posts,
     posts in the ground), so with a larger bias some shadow rays start inside a closed

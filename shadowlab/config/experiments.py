@@ -69,6 +69,7 @@ class ExperimentConfig(BaseModel):
                      _wanted("a non-empty list of tile grids such as \"31x7\"")] = None
     overflow_capacity: number(int, ge=1, optional=True) = None
     expand_level: number(int, ge=0, optional=True) = None
+    workers: _ints(1) = None
     front_face_culling: Annotated[Optional[StrictBool], _wanted("true or false")] = None
     # references and measurements
     truth_rays: number(int, ge=1, optional=True) = None

@@ -106,19 +106,12 @@ def _camera(config: RunConfig, base: Camera) -> Camera:
 def _refit_clip(config: RunConfig, scene: Scene, frames: list[View]) -> list[View]:
     """Replace the clip distances the config leaves open by the depth range of the
     geometry inside the view, taken over all frames."""
+    from ..scene.procedural import clip_ranges
+
     lo, hi = math.inf, -math.inf
-    seen: set[tuple] = set()
-    for view in frames:
-        cam = view.camera
-        key = (tuple(cam.eye), tuple(cam.target))
-        if key in seen:
-            continue
-        seen.add(key)
-        try:
-            near, far = _fit_clip(scene, cam)
-        except SceneError:
-            continue  # nothing in view in this frame
-        lo, hi = min(lo, near), max(hi, far)
+    for r in clip_ranges(scene, [v.camera for v in frames]):
+        if r is not None:                    # None: nothing in view in this frame
+            lo, hi = min(lo, r[0]), max(hi, r[1])
     cam_cfg = config.camera
     if not math.isfinite(hi):
         keys = [f"camera.{k}" for k in _given(cam_cfg)] + ["animation.eye_keys",
@@ -206,18 +199,6 @@ def light_type(light: Light) -> str:
     if isinstance(light, SphereLight):
         return "sun" if light.is_sun else "sphere"
     raise TypeError(f"not a light: {light!r}")
-
-
-def _fit_clip(scene: Scene, camera: Camera) -> tuple[float, float]:
-    """(near, far) bracketing the geometry inside ``camera``'s view frustum
-    (:func:`shadowlab.scene.procedural.fit_clip_range`).
-
-    Raises:
-        SceneError: nothing of the scene is in view.
-    """
-    from ..scene.procedural import fit_clip_range
-    return fit_clip_range(scene, camera.eye, camera.target, camera.up, camera.fov_y_deg,
-                          camera.aspect)
 
 
 def mesh_default_view(scene: Scene, resolution: tuple[int, int] = (256, 256),

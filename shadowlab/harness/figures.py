@@ -8,7 +8,9 @@ opens as a notebook) with
 - ``check(arrays, cfg) -> None`` (optional): raise AssertionError if the arrays
   break an invariant (exactness, equal work, monotone counts): a bug, at any size;
 - ``claims(arrays, cfg) -> list[dict]`` (optional): the paper's claims measured on our
-  scenes, each ``{"claim": str, "measured": str, "holds": bool}``. They are results,
+  scenes, each ``{"claim": str, "measured": str, "holds": bool}`` with optional ``"id"``
+  (the claim's id in :mod:`shadowlab.harness.claims`, which the ledger
+  ``docs/claims.md`` joins on) and ``"note"``. They are results,
   not invariants: written to the JSON and printed, and enforced only where the config
   sets ``require_claims = true`` (the CI sizes, where they are known to hold, so a
   regression shows);
@@ -46,15 +48,30 @@ class ClaimFailed(AssertionError):
 
 
 def measure_claims(module, arrays: dict, cfg: dict) -> list[dict]:
-    """The experiment's claims (``module.claims``), validated: [{claim, measured, holds}]."""
+    """The experiment's claims (``module.claims``), validated: [{claim, measured, holds}],
+    each with the optional keys ``id`` (a registered claim id,
+    :mod:`shadowlab.harness.claims`) and ``note`` (one line on the measurement)."""
+    from . import claims as registry
+
     if not hasattr(module, "claims"):
         return []
     found = []
     for c in module.claims(arrays, cfg):
-        if set(c) != {"claim", "measured", "holds"}:
-            raise ExperimentError(f"a claim needs the keys claim, measured, holds; got {sorted(c)}")
-        found.append({"claim": str(c["claim"]), "measured": str(c["measured"]),
-                      "holds": bool(c["holds"])})
+        keys = set(c)
+        if not {"claim", "measured", "holds"} <= keys or keys - {"claim", "measured", "holds",
+                                                               "id", "note"}:
+            raise ExperimentError("a claim needs the keys claim, measured, holds (optional: "
+                                  f"id, note); got {sorted(c)}")
+        out = {"claim": str(c["claim"]), "measured": str(c["measured"]),
+               "holds": bool(c["holds"])}
+        if "id" in c:
+            if c["id"] not in registry.BY_ID:
+                raise ExperimentError(f"claim {c['claim']!r}: unknown claim id {c['id']!r} "
+                                      "(register it in shadowlab/harness/claims.py)")
+            out = {"id": str(c["id"]), **out}
+        if c.get("note"):
+            out["note"] = str(c["note"])
+        found.append(out)
     return found
 
 

@@ -1172,6 +1172,12 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
         raise ValueError("the clustered PTSV kernels run in float32 only (precision='float32')")
     if o.get("bias_reject"):
         raise ValueError("the clustered PTSV kernels have no bias_reject node test")
+    if o.get("plane_set", "own") != "own":
+        raise ValueError("the clustered PTSV kernels use the method's own culling planes "
+                         "(plane_set='own')")
+    if o.get("tree_samples", "facing") != "facing":
+        raise ValueError("the clustered PTSV kernels build over the light-facing samples "
+                         "only (tree_samples='facing')")
     dev = init(device)
     load(dev)
     fma = xla_contracts(np.float32)

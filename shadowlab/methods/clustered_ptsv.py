@@ -391,8 +391,9 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                          prune: bool = False, wave: int = 512, front_face_culling: bool = False,
                          cull_side: str = "averted", bias_reject: bool = False,
                          leaf_samples: str = "tile", z_bits: int = 0,
-                         depth_slices: str = "clamp", method: str = "clustered_ptsv",
-                         options: dict | None = None):
+                         depth_slices: str = "clamp", tree_samples: str = "facing",
+                         plane_set: str = "own",
+                         method: str = "clustered_ptsv", options: dict | None = None):
     """The whole pipeline for ``kind`` = "cluster" (2014) or "ptsv" (2011).
 
     Returns:
@@ -406,6 +407,9 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     timer = StageTimer()
     with timer.stage("samples"):
         samples = view_samples(gbuf, light)
+        facing = None                       # tree_samples="facing": every sample faces
+        if tree_samples == "all":
+            samples, facing = _all_valid_samples(gbuf, samples)
     camera = gbuf.camera
     light_h = hard_light(light).homogeneous
     with precision_mode(precision) as dtype:
@@ -440,7 +444,9 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             tiles, table, slot = sst["tiles"], sst["table"], sst["slot"]
             jax.block_until_ready((hier.lo, tiles))
         with timer.stage("setup"):
-            extra = ("silhouette" if kind == "ptsv" else "culling") if culling_planes else "none"
+            own = "silhouette" if kind == "ptsv" else "culling"
+            extra = (own if plane_set == "own" else PLANE_SETS[plane_set]) \
+                if culling_planes else "none"
             inv_view = jnp.asarray(np.linalg.inv(camera.view_matrix()).astype(dtype))
             g, tol = post_perspective_planes(planes.reshape(-1, 4, 4), inv_view, sst["qmax"],
                                              sst["pmax"], extra=extra, p00=tree.p00,
@@ -470,7 +476,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             shadow_all = np.asarray(shadow_d)[: samples.count]
             ta_only = np.asarray(ta_d)[: samples.count]
             tests = np.asarray(tests_d)[: samples.count].astype(np.int64)
-    lit = samples.scatter(~shadow_all, fill=False)
+    lit = samples.scatter(~shadow_all if facing is None else ~shadow_all & facing,
+                          fill=False)
     job_iters = np.concatenate([iters1, iters2]) if passes == 2 else iters1
     counts_h = [int(c) for c in jax.device_get(hier.counts)]
     memory = ch.memory_report(tree, existing=sum(counts_h))
@@ -511,6 +518,38 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     return ShadowResult(lit, counters, timings), details
 
 
+def _all_valid_samples(gbuf, facing_samples):
+    """Every valid pixel as a sample (the 2011 build over the full depth buffer), and
+    bool [S] whether it faces the light (the others are unlit whatever the traversal
+    finds). Built like :func:`view_samples` from the G-buffer, without its light test."""
+    idx = np.flatnonzero(gbuf.valid)
+    facing = np.zeros(gbuf.valid.size, bool)
+    facing[facing_samples.index] = True
+    samples = dataclasses.replace(facing_samples, index=idx,
+                                  position=gbuf.position.reshape(-1, 3)[idx],
+                                  normal=gbuf.normal.reshape(-1, 3)[idx])
+    return samples, facing[idx]
+
+
+#: The papers' own configuration (Sintorn et al. 2014, Fig. 6 and Algorithm 1; Sintorn
+#: et al. 2011): light front-face culling of the triangles facing the light, the bias
+#: behind the caster's plane, and trivially accepted nodes removed from the tree. For
+#: ``ptsv`` the paper comparisons also build the tile tree over the full depth buffer
+#: (every valid pixel, ``tree_samples="all"``). The defaults stay the exact
+#: configuration; differences and costs: docs/clustered_ptsv.md ("The papers'
+#: configuration"). Once the methods' generic ``preset`` option is available these are
+#: their ``"paper"`` presets.
+PAPER_OPTIONS = {
+    "clustered_ptsv": {"front_face_culling": True, "cull_side": "facing", "bias": "cap",
+                       "prune": True},
+    "ptsv": {"front_face_culling": True, "cull_side": "facing", "bias": "cap",
+             "prune": True, "tree_samples": "all"},
+}
+
+
+#: option ``plane_set`` -> the extra rows of ``post_perspective_planes``
+PLANE_SETS = {"per_vertex": "culling", "silhouette": "silhouette"}
+
 BOOL = (True, False)
 COMMON_TRAVERSAL_OPTIONS = {
     "bias": Option("receiver", "self-shadowing bias: 'receiver' (as the reference) or 'cap' "
@@ -537,6 +576,14 @@ COMMON_TRAVERSAL_OPTIONS = {
                           "surface)", allowed=BOOL),
     "leaf_samples": Option("tile", "at a leaf test every sample of the tile (paper) or only "
                            "the samples of that cluster", allowed=("tile", "cluster")),
+    "plane_set": Option("own", "which extra culling planes: the method's own ('own': 2014 "
+                        "per-vertex planes for clustered_ptsv, 2D silhouette edges for ptsv), "
+                        "or either set on either tree for a head-to-head comparison",
+                        allowed=("own", "per_vertex", "silhouette")),
+    "tree_samples": Option("facing", "samples the tree is built over and tested at the "
+                           "leaves: the valid light-facing ones ('facing', tighter bounds) or "
+                           "every valid pixel ('all': the 2011 full depth buffer; the others "
+                           "stay unlit)", allowed=("facing", "all")),
 }
 
 

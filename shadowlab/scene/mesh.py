@@ -121,7 +121,11 @@ class Scene:
         return float(np.linalg.norm(hi - lo))
 
     def report(self) -> SceneReport:
-        return mesh_report(self)
+        """The mesh report (objects, closedness, ...), built once and cached on this
+        scene (front-face culling asks for it every frame)."""
+        if "_report_cache" not in self.__dict__:
+            self.__dict__["_report_cache"] = mesh_report(self)
+        return self.__dict__["_report_cache"]
 
     def adjacency(self, scope: str = "object", max_opposite: int = 2, dtype=np.float64):
         """The edge adjacency (:class:`shadowlab.scene.adjacency.Adjacency`), built

@@ -386,6 +386,42 @@ def fit_clip_range(scene: Scene, eye, target, up=(0.0, 1.0, 0.0), fov_y_deg: flo
     return float(near), float(far)
 
 
+def clip_ranges(scene: Scene, cameras) -> list[tuple[float, float] | None]:
+    """:func:`fit_clip_range` per camera (repeated placements computed once); None where
+    no geometry is in view."""
+    cache: dict[tuple, tuple[float, float] | None] = {}
+    out = []
+    for cam in cameras:
+        key = (tuple(cam.eye), tuple(cam.target), tuple(cam.up), cam.fov_y_deg, cam.aspect)
+        if key not in cache:
+            try:
+                cache[key] = fit_clip_range(scene, cam.eye, cam.target, cam.up,
+                                            cam.fov_y_deg, cam.aspect)
+            except SceneError:
+                cache[key] = None
+        out.append(cache[key])
+    return out
+
+
+def refit_clip(scene: Scene, views, per_frame: bool = True) -> list[View]:
+    """``views`` with near and far fitted to the geometry in view: per frame
+    (``per_frame``, what a renderer's projection does as the camera moves), or one range
+    over all frames. A frame with nothing in view keeps the range over all frames.
+
+    Raises:
+        SceneError: no geometry is in view in any frame.
+    """
+    views = list(views)
+    ranges = clip_ranges(scene, [v.camera for v in views])
+    found = [r for r in ranges if r is not None]
+    if not found:
+        raise SceneError("no geometry of the scene is inside the view in any frame")
+    union = (min(r[0] for r in found), max(r[1] for r in found))
+    return [View(v.camera.replace(near=(r if per_frame and r else union)[0],
+                                  far=(r if per_frame and r else union)[1]), v.light)
+            for v, r in zip(views, ranges)]
+
+
 def framed_view(scene: Scene, eye, target, light, fov_y_deg: float = 50.0,
                 resolution: tuple[int, int] = DEFAULT_RESOLUTION) -> View:
     """A :class:`View` looking from ``eye`` at ``target`` (Y up) with near/far fitted

@@ -1,0 +1,341 @@
+"""The paper-claims registry: every claim of the five papers the project measures.
+
+One place lists each claim once, by id: the paper (cited as in docs/references.md), the
+figure, table or section, the claim in our words, and the experiments meant to measure
+it. An experiment's ``claims(arrays, cfg)`` refers to a claim by its id (the key
+``"id"`` of a claim dict, :func:`shadowlab.harness.figures.measure_claims` refuses an
+unknown id), and the ledger (:mod:`shadowlab.harness.ledger`, ``docs/claims.md``) joins
+the registry with the claims recorded in ``figures/*.json``. A claim no experiment has
+measured yet is still a row of the ledger ("not measured"), with ``pending`` saying why
+or what would measure it.
+
+Fields of :class:`Claim`:
+
+- ``kind``: ``"quantitative"`` (a number or ratio the paper reports) or
+  ``"qualitative"`` (an ordering or property it states);
+- ``experiments``: the experiments (``experiments/<name>.py``) that measure it or are
+  meant to (empty: none yet);
+- ``pending``: for a claim with no measurement, why, or what would measure it;
+- ``explain``: one line shown where the claim fails on our scenes (the cause where it
+  is known); an experiment's own ``"note"`` on a measurement takes precedence;
+- ``tested_by``: a unit test that checks the claim on a constructed case (not a
+  measurement on a scene; shown beside the measurement).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+PAPERS = {
+    "S14": "Sintorn et al. 2014",
+    "M16": "Mora et al. 2016",
+    "P13": "Pečiva et al. 2013",
+    "T18": "Tokuyoshi and Mizokuchi 2018",
+    "K23": "Kalbertodt 2023",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Claim:
+    id: str
+    paper: str                     # a key of PAPERS
+    where: str                     # figure, table or section
+    text: str
+    kind: str = "quantitative"     # or "qualitative"
+    experiments: tuple[str, ...] = ()
+    pending: str = ""
+    explain: str = ""
+    tested_by: str = ""
+
+
+_GPU = "absolute GPU times; a CPU/XLA run cannot reproduce them, only the ratios"
+
+CLAIMS: tuple[Claim, ...] = (
+    # ---------------------------------------------------------------- Sintorn et al. 2014
+    Claim("s14.fig1.order", "S14", "Fig. 1",
+          "On the gate view the cluster hierarchy is faster than PTSV, and PTSV faster than "
+          "ZPASS (4.2 / 7.46 / 12.16 ms)",
+          experiments=("clustered_stages",),
+          explain="CPU/XLA engine: a level-synchronous traversal pays per level, not per "
+                  "warp; see docs/clustered_ptsv.md"),
+    Claim("s14.fig1c.volume", "S14", "Fig. 1c, Sec. 2.1",
+          "Explicit bounds give the hierarchy a much smaller total volume than implicit "
+          "bounds (and than PTSV's tiles; we require < half of either, leaf level)",
+          experiments=("clustered_heatmaps",)),
+    Claim("s14.fig3.ptsv_discontinuities", "S14", "Fig. 3",
+          "PTSV tests pixels at steep depth discontinuities far more often than elsewhere",
+          kind="qualitative", experiments=("clustered_heatmaps",)),
+    Claim("s14.fig3.cluster_discontinuities", "S14", "Fig. 3",
+          "The cluster hierarchy (explicit bounds) tests the pixels at steep depth "
+          "discontinuities much less often than PTSV (we require >= 2x)",
+          experiments=("clustered_heatmaps",)),
+    Claim("s14.fig6.implicit_more", "S14", "Sec. 2 (remaining problems), Fig. 6",
+          "With implicit bounds the hierarchy needs significantly more test-and-sets than "
+          "PTSV over the animations",
+          experiments=("clustered_animation",)),
+    Claim("s14.fig6.culling_planes", "S14", "Fig. 6",
+          "The per-vertex culling planes reduce the test-and-sets (modest in CITADEL, "
+          "significant in VILLA)",
+          experiments=("clustered_animation",)),
+    Claim("s14.fig6.le_ptsv", "S14", "Fig. 6, Sec. 2.1",
+          "With explicit bounds the hierarchy needs as many test-and-sets as PTSV or fewer, "
+          "in (almost) every frame of the fly-throughs",
+          experiments=("clustered_animation",),
+          explain="where PTSV's 8x4 tiles have no depth discontinuity their depth ranges are "
+                  "tight, and the deeper tree of 8x8 leaves tests more samples per leaf"),
+    Claim("s14.fig6.gain2x", "S14", "Fig. 6, Sec. 2.1",
+          "In frames with steep depth discontinuities the hierarchy often needs more than 2x "
+          "fewer test-and-sets than PTSV",
+          experiments=("clustered_animation",)),
+    Claim("s14.fig6.vs_silhouette_planes", "S14", "Sec. 2 (triangle setup), Fig. 6",
+          "The new per-vertex culling planes remove more false positives than PTSV's 2D "
+          "silhouette planes",
+          experiments=("clustered_animation",)),
+    Claim("s14.fig7.one_pass_peak", "S14", "Fig. 7",
+          "In one pass a few jobs (triangles) need about 10x the average number of "
+          "traversal iterations",
+          experiments=("clustered_load_balance",)),
+    Claim("s14.fig7.two_pass_peak", "S14", "Fig. 7",
+          "With two passes no job needs many more iterations than the average "
+          "(we require the largest <= 8x the average)",
+          experiments=("clustered_load_balance",),
+          explain="a pass-2 job is a (triangle, node) pair at level L; one large lit triangle "
+                  "above a dense leaf still holds all of its leaves' work"),
+    Claim("s14.fig7.makespan", "S14", "Fig. 7, Sec. 2.2",
+          "Two passes remove the load-balancing spikes: over P persistent workers the "
+          "makespan comes close to the ideal total / P",
+          experiments=("clustered_load_balance",)),
+    Claim("s14.fig8.explicit_faster", "S14", "Fig. 8",
+          "Explicit bounds make the traversal significantly faster than implicit bounds",
+          experiments=("clustered_animation",)),
+    Claim("s14.fig8.culling_faster", "S14", "Fig. 8",
+          "The culling planes make the traversal faster",
+          experiments=("clustered_animation",)),
+    Claim("s14.fig8.two_pass_spikes", "S14", "Fig. 8",
+          "The two-pass traversal removes the spikes of the traversal time",
+          kind="qualitative",
+          pending="not observable on a level-synchronous CPU engine (every level is one "
+                  "vectorised step; there are no idle warps to wait for); "
+                  "s14.fig7.makespan measures the cause instead"),
+    Claim("s14.fig5.faster", "S14", "Fig. 5",
+          "The cluster hierarchy outperforms PTSV and ZPASS over the fly-throughs, except "
+          "in views with very few shadow volumes, where ZPASS is faster",
+          experiments=("clustered_stages",),
+          explain="CPU/XLA engine: a level-synchronous traversal pays per level, not per "
+                  "warp; see docs/clustered_ptsv.md"),
+    Claim("s14.fig5.build_stable", "S14", "Fig. 5",
+          "Build, triangle setup and merge cost a low, nearly constant time per frame; the "
+          "traversal is view dependent",
+          experiments=("clustered_stages",)),
+    Claim("s14.fig5.ffc", "S14", "Fig. 5",
+          "Light front-face culling (closed objects) improves the total time significantly",
+          experiments=("clustered_stages",)),
+    Claim("s14.sec2_3.build_like_ptsv", "S14", "Sec. 2.3, Fig. 5",
+          "Building the hierarchy takes about as long as PTSV's hierarchical depth buffer",
+          experiments=("clustered_stages",)),
+    Claim("s14.fig9.build_2x", "S14", "Fig. 9, Sec. 3",
+          "At 1080p building the hierarchy takes about twice as long as at 720p / 1024^2",
+          experiments=("clustered_stages",),
+          explain="the build touches every node of the full-tree arrays, whose size grows "
+                  "with the key bits (one more bit per axis at 1080p), not with the nodes"),
+    Claim("s14.fig9.traverse_scales", "S14", "Fig. 9, Sec. 3",
+          "Traversal scales much better with resolution than the build (more nodes are "
+          "trivially accepted)",
+          experiments=("clustered_stages",)),
+    Claim("s14.sec3.compact_5pct", "S14", "Sec. 3",
+          "The compact box storage runs at most 5 % slower than full storage",
+          experiments=("clustered_stages",)),
+    Claim("s14.sec3.memory", "S14", "Sec. 3",
+          "At 1024^2 the full tree has 8.65 M nodes: 1 MB of bits, 198 MB of full boxes or "
+          "33 MB of pointers plus a compact list that never exceeded 52,000 boxes; 1080p "
+          "needs (66 + 2) MB expected",
+          experiments=("clustered_stages",),
+          explain="our compact storage counts masks, pointers and 24-byte boxes of the "
+                  "existing nodes; the paper's 33 MB of pointers for 8.65 M nodes does not "
+                  "follow from 4-byte pointers either (35 MB)"),
+    Claim("s14.sec2.z_bits", "S14", "Sec. 2",
+          "Nine bits for z' are more than sufficient at 1024^2 for all scenes",
+          experiments=("clustered_stages",),
+          explain="the automatic z bits (two more than the x / y bits) are the paper's 9 at "
+                  "1024^2 only; at other sizes see the measured bits"),
+    # ---------------------------------------------------------------- Mora et al. 2016
+    Claim("m16.fig3.front_point", "M16", "Fig. 3, Sec. 3.3",
+          "A point in front of every occluder (closer to the light) is lit; PSV must visit "
+          "the tree to prove it, the depth test stops at the root volume",
+          kind="qualitative", tested_by="tests/test_psv_paper_examples.py::test_fig3_point_in_front"),
+    Claim("m16.fig4.stackless_path", "M16", "Fig. 4, Sec. 3.4",
+          "The stackless query answers like the stack query without a stack, jumping back "
+          "along ancestor links; the hybrid switches to it when its short stack is full and "
+          "otherwise visits exactly D-PSV's nodes",
+          kind="qualitative", tested_by="tests/test_psv_paper_examples.py::test_fig4_stackless_path"),
+    Claim("m16.fig5.stack_low", "M16", "Fig. 5, Sec. 3.5",
+          "PSV's stack usage stays below half of its size (16 of 32) for most image points "
+          "and comes close to the maximum only in a few places",
+          experiments=("psv_queries",)),
+    Claim("m16.fig6.lit_only", "M16", "Fig. 6, Sec. 4.2",
+          "The depth test leaves shadowed points' visits nearly unchanged and reduces lit "
+          "points' visits significantly",
+          experiments=("psv_queries",)),
+    Claim("m16.fig6.order", "M16", "Fig. 6, Sec. 4.2",
+          "D-Stackless visits more nodes than D-PSV but fewer than PSV; D-Hybrid is "
+          "comparable to D-PSV",
+          kind="qualitative", experiments=("psv_queries",),
+          explain="D-Stackless exceeds PSV where the depth test saves little: every jump back "
+                  "along an ancestor link re-tests nodes that a stack would have popped; the "
+                  "paper sees the same on SHIP and EXCAVATOR (114 %, 106 %)"),
+    Claim("m16.fig7.always_fewer", "M16", "Fig. 7, Sec. 4.2",
+          "D-PSV and D-Hybrid visit fewer nodes than PSV in every frame",
+          experiments=("psv_animation",)),
+    Claim("m16.fig7.light_behind_peak", "M16", "Fig. 7, Sec. 4.2",
+          "PSV peaks when the light is behind and close to the camera; the depth test "
+          "removes most of that peak",
+          experiments=("psv_animation",),
+          explain="not analysed yet; CI size (48x48, 5 frames, 2,306 triangles)"),
+    Claim("m16.fig8.dpsv_pct", "M16", "Fig. 8",
+          "D-PSV and D-Hybrid visit 62-72 % of PSV's nodes",
+          experiments=("psv_animation",),
+          explain="our fly-through spends fewer frames with the light behind the camera than "
+                  "the paper's 2,500-frame animations; at CI size the scene is tiny"),
+    Claim("m16.fig8.dstackless_pct", "M16", "Fig. 8",
+          "D-Stackless visits 84-114 % of PSV's nodes",
+          experiments=("psv_animation",),
+          explain="as for m16.fig6.order: the jumps back cost more than the depth test saves "
+                  "on our small CI scene"),
+    Claim("m16.fig8.hybrid_fastest", "M16", "Fig. 8, Sec. 4.3",
+          "D-Hybrid has the best average time with the smallest standard deviation "
+          "(except on SHIP)",
+          experiments=("psv_animation",),
+          explain="on a CPU there is no register pressure: the stack query costs the same "
+                  "at any stack size, and the hybrid's bookkeeping is pure overhead"),
+    Claim("m16.fig8.accel", "M16", "Fig. 8, Sec. 4.3",
+          "Every depth-tested query is faster than PSV on average (acceleration 1.13-1.59); "
+          "D-Hybrid's best factor is 1.43-3.05",
+          experiments=("psv_animation",)),
+    Claim("m16.fig7.build_overhead", "M16", "Fig. 7, Sec. 4.3",
+          "The modified build (depth per volume, atomic minimum) has a small overhead over "
+          "the original build",
+          pending="not measurable as such: the one build here always computes the depths and "
+                  "ancestor links (all four queries share it), so there is no original build "
+                  "to time against"),
+    Claim("m16.fig7.zpass_duality", "M16", "Fig. 7, Sec. 4.3",
+          "Z-PASS is fast where PSV is pathological (light behind the camera) and slow with "
+          "large elongated shadow quads: a duality",
+          kind="qualitative", experiments=("psv_animation",)),
+    Claim("m16.fig9.stack_size", "M16", "Fig. 9, Sec. 4.4",
+          "D-Hybrid's time has a best stack size (12 for small scenes, 16-20 for complex "
+          "ones); a too small stack switches to stackless too often",
+          experiments=("psv_queries",),
+          explain="on a CPU a larger stack costs no registers or occupancy, so wherever a "
+                  "smaller stack switches the largest one is fastest; the paper's optimum "
+                  "is a GPU register-pressure trade-off"),
+    Claim("m16.sec3_5.no_overflow", "M16", "Sec. 3.5, 4",
+          "D-Hybrid never overflows; PSV and D-PSV with a 32-entry stack do not overflow on "
+          "the paper's scenes except EXCAVATOR (48)",
+          experiments=("psv_queries", "psv_animation")),
+    Claim("m16.sec4_1.memory", "M16", "Sec. 3.6, 4.1",
+          "Depth and ancestor links add no memory: 4 nodes of 32 bytes per triangle",
+          pending="the node layout here is structure-of-arrays; no experiment records bytes"),
+    Claim("m16.sec4_4.random_order", "M16", "Sec. 4.4",
+          "The randomised insertion order keeps TOP trees from becoming unbalanced "
+          "(after Gerhards et al. 2015)",
+          kind="qualitative", experiments=("psv_insertion_order",)),
+    # ---------------------------------------------------------------- Pečiva et al. 2013
+    Claim("p13.exact_nonmanifold", "P13", "Abstract, Sec. 1",
+          "Silhouette shadow volumes give per-sample exact shadows for arbitrary "
+          "(non-manifold) triangle meshes",
+          kind="qualitative", experiments=("silhouette_*",),
+          pending="the silhouette method and its experiments are being added (another issue)"),
+    Claim("p13.vs_shadow_map", "P13", "Tables 5, 6",
+          "On Sponza, silhouette shadow volumes outperform 8k shadow mapping on AMD GPUs and "
+          "are comparable elsewhere",
+          experiments=("silhouette_*",),
+          pending="GPU-specific frame rates; a CPU run can only compare work counts"),
+    Claim("p13.visibility_test", "P13", "Fig. 9, 10",
+          "The side-visibility test (and the front cap shifted to infinity) improves the "
+          "frame rate",
+          experiments=("silhouette_*",),
+          pending="the silhouette experiments are being added (another issue)"),
+    Claim("p13.manifold_faster", "P13", "Sec. 4",
+          "The 2-manifold implementation is faster than the general one (the paper leaves "
+          "the percentage as 'XY %')",
+          kind="qualitative", experiments=("silhouette_*",),
+          pending="the paper gives no number"),
+    # ---------------------------------------------------------------- Tokuyoshi and Mizokuchi 2018
+    Claim("t18.fig1.speedup", "T18", "Fig. 1, Sec. 4",
+          "The conservative shadow-map prepass more than doubles the IZB hard-shadow speed "
+          "(8.52 -> 3.59 ms at 4K)",
+          experiments=("izb_*",),
+          pending="the IZB method and its experiments are being added (another issue)"),
+    Claim("t18.fig3.stages", "T18", "Fig. 3",
+          "With node culling IZB creation drops 3.28 -> 1.07 ms and frustum tracing "
+          "9.12 -> 0.58 ms (list lengths shrink)",
+          experiments=("izb_*",),
+          pending="the IZB experiments are being added (another issue)"),
+    Claim("t18.tab1.cull_rate", "T18", "Table 1",
+          "The barycentric full-coverage test culls 56.0 % / 37.4 % of the shading points "
+          "(Hertel et al. 2009: 55.5 % / 35.8 %) at the same cost",
+          experiments=("izb_*",),
+          pending="the IZB experiments are being added (another issue)"),
+    Claim("t18.conservative", "T18", "Sec. 2",
+          "The conservative shadow map never shadows a lit point (the result stays exact)",
+          kind="qualitative", experiments=("izb_*",),
+          pending="the IZB experiments are being added (another issue)"),
+    # ---------------------------------------------------------------- Kalbertodt 2023
+    Claim("k23.overlap_sum", "K23", "Rasterization",
+          "Summing the overlap areas of the occluders over-shadows (two half-covers give 1, "
+          "not 0.5); the bitset union does not",
+          kind="qualitative", experiments=("soft_tiled_error",),
+          pending="claims of the soft_tiled experiments are being added (another issue); "
+                  "they are listed below once recorded"),
+    Claim("k23.clamp", "K23", "Projection",
+          "The max(0.0001, ...) clamp of the projection works without artifacts",
+          kind="qualitative", experiments=("soft_tiled_stability",),
+          pending="claims of the soft_tiled experiments are being added (another issue)"),
+    Claim("k23.rotation", "K23", "Fixing banding",
+          "Randomly rotating the grid removes the banding without visible noise",
+          kind="qualitative", experiments=("soft_tiled_error",),
+          pending="claims of the soft_tiled experiments are being added (another issue)"),
+    Claim("k23.grid_31xn", "K23", "Grid size optimization",
+          "31x3 / 31x5 / 31x7 grids cost 2.1 / 2.5 / 3.1 ms against 5 ms for 16x16, "
+          "trading banding for time",
+          experiments=("soft_tiled_error",),
+          pending="claims of the soft_tiled experiments are being added (another issue)"),
+    Claim("k23.ffc", "K23", "Gather pass",
+          "Culling light-facing triangles removes more triangles than back-face culling "
+          "(terrain faces the light)",
+          experiments=("soft_tiled_culling",),
+          pending="claims of the soft_tiled experiments are being added (another issue)"),
+    Claim("k23.gather", "K23", "Performance",
+          "The gather pass reduces 13 M triangles to about 2.5 M (about 19 %)",
+          experiments=("soft_tiled_culling",),
+          pending="claims of the soft_tiled experiments are being added (another issue)"),
+    Claim("k23.halfz", "K23", "Depth discontinuities & half-z",
+          "Half-z splitting of the tile depth range helps less than expected; tiles with "
+          "large depth ranges overflow the list",
+          kind="qualitative", experiments=("soft_tiled_culling",),
+          pending="claims of the soft_tiled experiments are being added (another issue)"),
+)
+
+BY_ID = {c.id: c for c in CLAIMS}
+
+
+def get(claim_id: str) -> Claim:
+    """The registered claim ``claim_id``; KeyError naming the known ids' papers if none."""
+    try:
+        return BY_ID[claim_id]
+    except KeyError:
+        raise KeyError(f"unknown claim id {claim_id!r}; registered ids start with "
+                       f"{', '.join(sorted({k.split('.')[0] for k in BY_ID}))} "
+                       "(shadowlab.harness.claims.CLAIMS)") from None
+
+
+def measured(claim_id: str, measured_text: str, holds: bool, *, label: str = "",
+             note: str = "") -> dict:
+    """A claim dict for an experiment's ``claims()``: the registered text (prefixed by
+    ``label``, e.g. the scene), what was measured and whether it holds."""
+    c = get(claim_id)
+    out = {"id": c.id, "claim": f"{label}: {c.text}" if label else c.text,
+           "measured": str(measured_text), "holds": bool(holds)}
+    if note:
+        out["note"] = str(note)
+    return out
