@@ -100,11 +100,13 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
     nodes_ratio = c["list_nodes"][1] / max(c["list_nodes"][0], 1)
     trace_ratio = sec[1, 2] / max(sec[0, 2], 1e-12)
     return [
-        {"claim": "the two-pass visibility test improves hard-shadow time by more than 2x",
+        {"id": "t18.fig1.speedup",
+         "claim": "the two-pass visibility test improves hard-shadow time by more than 2x",
          "measured": f"CSM + creation + tracing {1000 * passes[0]:.1f} -> "
                      f"{1000 * passes[1]:.1f} ms ({speed:.2f}x; this CPU, under load)",
          "holds": bool(speed > 2)},
-        {"claim": "tracing work falls faster than the node count (Fig. 3: creation 3.1x, "
+        {"id": "t18.fig3.stages",
+         "claim": "tracing work falls faster than the node count (Fig. 3: creation 3.1x, "
                   "tracing 15.7x)",
          "measured": f"tests x{tests_ratio:.3f}, nodes x{nodes_ratio:.3f}, trace time "
                      f"x{trace_ratio:.2f}",
