@@ -31,14 +31,18 @@ def _case(name: str, sphere: bool = False):
 
 
 def test_error_against_reference_terrain(precision):
+    """The defaults are the exact variant; the paper's preset is one switch away."""
     scene, gbuf, light, ref = _case("terrain")
     exact = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", precision=precision,
-                               projection="homogeneous", face_cull="none", on_overflow="full",
                                **FAST)
+    o = exact.options
+    assert (o["preset"], o["projection"], o["face_cull"], o["on_overflow"]) == (
+        "accurate", "homogeneous", "none", "full")
     err = compare_soft(exact.lit, ref, gbuf.valid)
     assert err["mae"] < 0.003 and err["max_error"] < 0.1, err
     paper = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", precision=precision,
-                               on_overflow="full", **FAST)
+                               preset="paper", on_overflow="full", **FAST)
+    assert (paper.options["projection"], paper.options["face_cull"]) == ("paper", "front")
     err = compare_soft(paper.lit, ref, gbuf.valid)
     assert err["mae"] < 0.01 and err["ssim"] > 0.9, err
     assert paper.lit.dtype.kind == "f" and paper.lit.min() >= 0 and paper.lit.max() <= 1
@@ -47,8 +51,7 @@ def test_error_against_reference_terrain(precision):
 
 def test_error_against_reference_sphere_light():
     scene, gbuf, light, ref = _case("fuzzy", sphere=True)
-    res = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", projection="homogeneous",
-                             face_cull="none", on_overflow="full", **FAST)
+    res = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", **FAST)
     err = compare_soft(res.lit, ref, gbuf.valid)
     assert err["mae"] < 0.01, err
     assert (ref[gbuf.valid] < 0.99).mean() > 0.05        # the scene has real penumbrae
@@ -78,7 +81,8 @@ def test_overflow_is_counted_and_shown():
     cap = 16
     lengths = full.counters["tile_list_lengths"]
     assert (lengths > cap).any()
-    small = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", capacity=cap, **FAST)
+    small = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", capacity=cap,
+                               on_overflow="truncate", **FAST)
     c = small.counters
     assert c["overflow_tiles"] == int((lengths > cap).sum())
     assert c["dropped_entries"] == int(np.maximum(lengths - cap, 0).sum())
@@ -150,7 +154,8 @@ def test_sphere_light_large_errors_only_in_overflowing_tiles():
     in a flagged tile, and evaluating the whole list removes it."""
     scene, gbuf, light, ref = _case("fuzzy", sphere=True)
     common = dict(FAST, projection="homogeneous", face_cull="none", capacity=48)
-    trunc = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", **common)
+    trunc = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", on_overflow="truncate",
+                               **common)
     full = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", on_overflow="full",
                               **common)
     v = gbuf.valid

@@ -660,9 +660,10 @@ COMMON_SOFT = {
                          "silhouette cone) or the paper's 'sin'", allowed=("tan", "sin")),
     "horizon": Option(True, "clear the disk below the receiver's tangent plane (the "
                       "reference counts it as blocked); False = the paper", allowed=(True, False)),
-    "face_cull": Option("front", "gather: 'front' culls triangles facing all of the light "
-                        "(the paper; exact for closed meshes and height fields), 'back' the "
-                        "opposite, 'none' keeps both (two-sided soup)",
+    "face_cull": Option("none", "gather: 'none' keeps every triangle (exact, also for "
+                        "two-sided soup); 'front' culls triangles facing all of the light "
+                        "(the paper; loses occluders where a grazing receiver's bias skips "
+                        "the entry face, and on soup), 'back' the opposite",
                         allowed=("none", "front", "back")),
     "gather_cull": Option(True, "view-frustum culling of cluster and triangle cones",
                           allowed=(True, False)),
@@ -678,12 +679,20 @@ COMMON_SOFT = {
                      allowed=(True, False)),
     "capacity": Option(2048, "per-tile triangle list capacity (the paper's shared-memory "
                        "list; 2048 x 4 bytes = 8 KiB)", kind=int, minimum=1),
-    "on_overflow": Option("truncate", "a tile whose list overflows: 'truncate' keeps the "
-                          "first `capacity` entries (the paper; counted and shown), 'full' "
-                          "evaluates all", allowed=("truncate", "full")),
+    "on_overflow": Option("full", "a tile whose list overflows (counted and shown either "
+                          "way): 'full' evaluates its whole list (exact), 'truncate' only the "
+                          "first `capacity` entries (the paper; too bright there)",
+                          allowed=("full", "truncate")),
     "chunk": Option(4, "list entries per unrolled loop step", allowed=(1, 2, 4, 8)),
 }
 
+
+#: the paper's own choices where they differ from the (accurate) defaults, shared by
+#: both soft methods; docs/soft_tiled.md lists each difference and its cost
+PAPER_CULLING = {"face_cull": "front", "on_overflow": "truncate", "disk_scale": "sin",
+                 "horizon": False}
+PAPER_PRESETS = {"soft_tiled": {"paper": {"projection": "paper", **PAPER_CULLING}},
+                 "soft_overlap_sum": {"paper": dict(PAPER_CULLING)}}
 
 #: what both soft methods declare to the registry
 SOFT_DECLARATION = {
@@ -702,14 +711,16 @@ SOFT_DECLARATION = {
 @register("soft_tiled", **SOFT_DECLARATION,
           doc="tiled per-triangle soft shadows: sun-disk bitmask rasterizer with cone "
               "culling per 16x16 tile", paper="Kalbertodt 2023",
+          presets=PAPER_PRESETS["soft_tiled"],
           options={"grid": GRID_OPTION,
                    "rotate": Option(True, "random grid rotation per pixel (against banding)",
                                     allowed=(True, False)),
                    "seed": Option(0, "seed of the per-pixel rotation hash", kind=int,
                                   minimum=0),
-                   "projection": Option("paper", "'paper': divide by max(1e-4, s |z|) with "
-                                        "abs(); 'homogeneous': exact 3-D edge functions",
-                                        allowed=("paper", "homogeneous")),
+                   "projection": Option("homogeneous", "'homogeneous': exact 3-D edge "
+                                        "functions; 'paper': divide by max(1e-4, s |z|) with "
+                                        "abs() (wrong where a caster nears the receiver)",
+                                        allowed=("homogeneous", "paper")),
                    "defer": Option(True, "rasterize only the pairs passing the per-pixel "
                                    "quick reject (queued per pixel) and stop a pixel whose "
                                    "grid is empty; False = rasterize every visited pair "
@@ -725,6 +736,7 @@ def soft_tiled(scene, gbuf, light, **opts):
 @register("soft_overlap_sum", **SOFT_DECLARATION,
           doc="naive comparison: sum of analytic disk-triangle overlap areas (double-counts "
               "overlapping occluders)", paper="Kalbertodt 2023",
+          presets=PAPER_PRESETS["soft_overlap_sum"],
           options=dict(COMMON_SOFT))
 def soft_overlap_sum(scene, gbuf, light, **opts):
     culling, rest = split_culling(opts)
