@@ -48,7 +48,7 @@ def blocker_cones(tri: np.ndarray, groups: np.ndarray | None, light: SphereLight
         pts = tri                                              # [n, 3, 3]
         mask = np.ones(tri.shape[:2], bool)
     else:
-        pts = tri[np.maximum(groups, 0)].reshape(len(groups), -1, 3)
+        pts = tri[np.maximum(groups, 0)].reshape(len(groups), 3 * groups.shape[1], 3)
         mask = np.repeat(groups >= 0, 3, axis=1)
     big = np.where(mask[..., None], pts, np.nan)
     lo = np.nanmin(big, axis=1)
