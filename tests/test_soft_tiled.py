@@ -1,6 +1,7 @@
 """soft_tiled / soft_overlap_sum against the Embree soft reference; culling is conservative."""
 
 import functools
+import time
 
 import numpy as np
 import pytest
@@ -112,8 +113,15 @@ def test_counters_are_consistent():
     assert c["active_tiles"] <= c["tiles"] == 9
     assert c["tile_cluster_survivors"] <= c["tile_cluster_pairs"]
     assert c["samples"] <= int(gbuf.valid.sum())
+    t0 = time.perf_counter()
     again = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", **FAST)
+    wall = time.perf_counter() - t0
     assert np.array_equal(again.lit, res.lit)                       # deterministic
+    # the warm total is the whole call, host work included ("host": between the stages)
+    t = again.timings
+    assert t["host"] >= 0 and t["total"] == pytest.approx(
+        sum(v for k, v in t.items() if k != "total" and not k.endswith("_compile")))
+    assert wall - t["total"] < 0.05 + 0.2 * wall, (wall, t)
 
 
 def test_overlap_sum_double_counts():

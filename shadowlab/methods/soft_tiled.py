@@ -496,17 +496,28 @@ def _gather(timer, scene, light, cam, depth, relevant, eps, culling: CullSetting
     return Gathered(gathered, g_members, g_cl_cone, g_tri_cone, clusters, after_facing, pad)
 
 
-def soft_tiled_impl(scene, gbuf, light, *, culling: CullSettings, precision, shadow_eps,
-                    grid, rotate, seed, projection, disk_scale, horizon, chunk, mode, method,
-                    defer=False):
+def soft_tiled_impl(scene, gbuf, light, **kwargs):
     """Visibility of every pixel (see the module docstring).
 
     ``culling`` holds the gather and tile-list settings; the rest configure the per-pixel
     evaluation (``mode``: "bitmask" rasterizes into the disk grid, "overlap" sums
     analytic overlap areas). Returns a ``ShadowResult`` whose ``lit`` is float [H, W]
-    visibility in [0, 1].
+    visibility in [0, 1]. Its ``total`` is the whole call's wall time, compile apart:
+    host work between the named stages (gathers, compactions, copies between host and
+    device, the batch loop) is the stage ``host``.
     """
     timer = StageTimer()
+    with timer.remainder("host"):
+        vis_img, counters = _soft_tiled(timer, scene, gbuf, light, **kwargs)
+    timings = dict(timer.times, total=timer.total)
+    return ShadowResult(vis_img, counters, timings)
+
+
+def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, shadow_eps,
+                grid, rotate, seed, projection, disk_scale, horizon, chunk, mode, method,
+                defer=False):
+    """(visibility float [H, W], counters) of :func:`soft_tiled_impl`; stages into
+    ``timer``."""
     cam = gbuf.camera
     h, w = gbuf.shape
     eps = shadow_epsilon(scene, shadow_eps)
@@ -642,8 +653,7 @@ def soft_tiled_impl(scene, gbuf, light, *, culling: CullSettings, precision, sha
         "rasterized_per_pixel": to_image(rast),
         "near_clamp_per_pixel": to_image(clamped),
     }
-    timings = dict(timer.times, total=timer.total)
-    return ShadowResult(vis_img, counters, timings)
+    return vis_img, counters
 
 
 def split_culling(opts: dict) -> tuple[CullSettings, dict]:
@@ -698,7 +708,7 @@ PAPER_PRESETS = {"soft_tiled": {"paper": {"projection": "paper", **PAPER_CULLING
 SOFT_DECLARATION = {
     "kind": "soft",
     "stages": ("setup", "gather", "gather_test", "tile_bounds", "tile_cull", "tile_lists",
-               "eval_setup", "eval", "output"),
+               "eval_setup", "eval", "output", "host"),
     "counters": ("samples", "casters", "culled_triangles", "tests", "tests_per_pixel",
                  "soft_clusters", "light_facing_survivors", "gather_clusters",
                  "gather_triangles", "active_tiles", "tiles", "tile_cluster_pairs",
