@@ -169,6 +169,9 @@ def test_deferred_rasterization_is_bit_identical(name, sphere, projection):
     # the same pairs pass the quick reject; an empty grid ends a pixel's visits early
     d, e = dense.counters, deferred.counters
     assert (e["tests_per_pixel"] <= d["tests_per_pixel"]).all()
+    # lanes executed: the dense path rasterizes every visited step on every lane, the
+    # deferred one only its flush steps; both at least the pairs that did work
+    assert d["raster_lanes"] >= e["raster_lanes"] >= e["rasterized_triangles"] > 0
     assert (e["rasterized_per_pixel"] <= d["rasterized_per_pixel"]).all()
     stopped = e["tests_per_pixel"] < d["tests_per_pixel"]
     assert (deferred.lit[stopped] == 0).all()

@@ -108,6 +108,9 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("near_clamp_per_pixel", "map", "rasterized triangles with a vertex behind the "
             "fragment or closer than the paper's clamp depth (s |z| < 1e-4), where its abs() "
             "and max() act"),
+    Counter("raster_lanes", "int", "pixel lanes the vectorized rasterizer executed: steps x "
+            "pixels of each batch (deferred: flush steps; rasterized_triangles of them did "
+            "work)"),
     Counter("cas_failures", "int", "reference kernels: compare-and-swap operations that lost a "
             "race (the slot was taken by another thread first); 0 in a serial schedule"),
 ]}

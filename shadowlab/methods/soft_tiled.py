@@ -307,7 +307,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 vis = jnp.clip(1.0 - blocked, 0.0, 1.0)
             else:
                 vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
-            return jnp.where(rel, vis, 0.0), tests, rast, clamp
+            # every step rasterized on every lane of the batch
+            steps = (trips * chunk).astype(jnp.int32)
+            return jnp.where(rel, vis, 0.0), tests, rast, clamp, steps
 
         # Deferred: a first pass over the list only runs the per-pixel quick reject and
         # records the entries passing it as bits (bit b of word w: list slot 32 w + b of
@@ -366,31 +368,32 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 keep = raster_pair(entries[idx], has)
                 return [wd & kp for wd, kp in zip(words, keep)], summary, cur, cur_w
 
+            n_steps = jnp.max(todo)
             words, _, _, _ = jax.lax.fori_loop(
-                0, jnp.max(todo), step,
+                0, n_steps, step,
                 (words, summary, jnp.zeros(shape, jnp.uint32), jnp.zeros(shape, jnp.int32)))
-            return words
+            return words, n_steps
 
         def round_(state):
-            base, words, tests, rast, clamp, alive = state
+            base, words, tests, rast, clamp, alive, steps = state
             end = jnp.minimum(base + words_per_round, n_words)
             _, tests, rast, clamp, bits, summary, _ = jax.lax.fori_loop(
                 base, end, record,
                 (base, tests, rast, clamp, jnp.zeros((words_per_round,) + shape, jnp.uint32),
                  jnp.zeros(shape, jnp.uint32), alive))
-            words = flush(words, base, bits, summary)
+            words, n_steps = flush(words, base, bits, summary)
             alive = functools.reduce(jnp.logical_or, [wd != 0 for wd in words])
-            return end, words, tests, rast, clamp, alive
+            return end, words, tests, rast, clamp, alive, steps + n_steps
 
         def more(state):
-            return (state[0] < n_words) & jnp.any(state[-1] & rel)
+            return (state[0] < n_words) & jnp.any(state[5] & rel)
 
         alive0 = functools.reduce(jnp.logical_or, [wd != 0 for wd in words0])
         state = jax.lax.while_loop(more, round_, (jnp.int32(0), words0, zero, zero, zero,
-                                                  alive0))
-        _, words, tests, rast, clamp, _ = state
+                                                  alive0, jnp.int32(0)))
+        _, words, tests, rast, clamp, _, steps = state
         vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
-        return jnp.where(rel, vis, 0.0), tests, rast, clamp
+        return jnp.where(rel, vis, 0.0), tests, rast, clamp, steps
 
     return run
 
@@ -594,6 +597,7 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             tests = np.zeros((n_tiles, TILE * TILE), np.int64)
             rast = np.zeros((n_tiles, TILE * TILE), np.int64)
             clamped = np.zeros((n_tiles, TILE * TILE), np.int64)
+            raster_lanes = 0
             # tiles sorted by chunk count, in batches of a fixed size: one compiled shape,
             # and every batch loops only as long as its longest list
             work = np.flatnonzero(active)
@@ -608,13 +612,14 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             cnts = np.zeros(batch, np.int32)
             cnts[: len(members_t)] = counts[members_t]
             trips = jnp.asarray(int(nchunks[members_t].max()), jnp.int32)
-            v, te, ra, cl = timer.run("eval", kernel, jnp.asarray(tiles), jnp.asarray(offs),
+            v, te, ra, cl, st = timer.run("eval", kernel, jnp.asarray(tiles), jnp.asarray(offs),
                                       jnp.asarray(cnts), trips, *args_common)
             n = len(members_t)
             vis[members_t] = np.asarray(v)[:n]
             tests[members_t] = np.asarray(te)[:n]
             rast[members_t] = np.asarray(ra)[:n]
             clamped[members_t] = np.asarray(cl)[:n]
+            raster_lanes += int(st) * batch * TILE * TILE
 
     with timer.stage("output"):
         def to_image(values, fill=0):
@@ -652,6 +657,7 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
         "rasterized_triangles": int(rast.sum()),
         "rasterized_per_pixel": to_image(rast),
         "near_clamp_per_pixel": to_image(clamped),
+        "raster_lanes": raster_lanes,
     }
     return vis_img, counters
 
@@ -715,7 +721,8 @@ SOFT_DECLARATION = {
                  "tile_cluster_survivors", "tile_triangle_pairs", "tile_triangles",
                  "tile_triangles_max", "tile_list_lengths", "tile_triangles_per_pixel",
                  "overflow_tiles", "overflow_tiles_per_pixel", "dropped_entries",
-                 "rasterized_triangles", "rasterized_per_pixel", "near_clamp_per_pixel")}
+                 "rasterized_triangles", "rasterized_per_pixel", "near_clamp_per_pixel",
+                 "raster_lanes")}
 
 
 @register("soft_tiled", **SOFT_DECLARATION,
