@@ -3,7 +3,7 @@
 import numpy as np
 
 from shadowlab import Camera, PointLight, Scene
-from shadowlab.analysis import compare_hard, compare_soft, error_map
+from shadowlab.analysis import compare_hard, compare_soft, error_map, penumbra_mask
 from shadowlab.reference.boundary import boundary_distance, edge_tolerance, unexplained_mismatches
 from shadowlab.reference.raycast import GBuffer
 
@@ -28,6 +28,48 @@ def test_soft_metrics():
     assert np.isclose(m["max_error"], 0.5) and np.isclose(m["mae"], 0.5 / 64)
     assert np.isclose(m["rmse"], np.sqrt(0.25 / 64))
     assert compare_soft(truth, truth, valid)["ssim"] == 1.0
+
+
+def test_penumbra_mask_is_the_strict_penumbra_dilated_within_valid_pixels():
+    truth = np.zeros((9, 12))
+    truth[:, 6:] = 1.0
+    truth[4, 5] = 0.3                                      # one penumbra pixel
+    truth[0, 11] = 1.0 - 1e-9                              # strictly below 1: penumbra too
+    valid = np.ones(truth.shape, bool)
+    valid[4, 7] = False
+    m = penumbra_mask(truth, valid, dilation=2)
+    want = np.zeros(truth.shape, bool)
+    want[2:7, 3:8] = True
+    want[0:3, 9:12] = True
+    want[4, 7] = False                                     # invalid pixels never count
+    assert np.array_equal(m, want)
+    assert np.array_equal(penumbra_mask(truth, valid, dilation=0), (truth > 0) & (truth < 1))
+    assert not penumbra_mask(np.round(truth), valid).any()  # a hard truth has none
+
+
+def test_soft_metrics_over_the_penumbra_beside_the_whole_image():
+    """A hard thresholding of a soft edge is diluted over the whole image but not over
+    the penumbra region."""
+    x = np.arange(64)
+    truth = np.tile(np.clip((x - 28) / 8.0, 0.0, 1.0), (64, 1))   # a ramp over columns 29..35
+    hard = (truth >= 0.5).astype(float)
+    valid = np.ones(truth.shape, bool)
+    m = compare_soft(hard, truth, valid, dilation=1)
+    diff = np.abs(hard - truth)
+    region = np.zeros(truth.shape, bool)
+    region[:, 28:37] = True                                # columns 29..35 dilated by 1
+    assert m["penumbra_pixels"] == region.sum() == 64 * 9
+    assert np.isclose(m["mae"], diff.mean())
+    assert np.isclose(m["penumbra_mae"], diff[region].mean())
+    assert np.isclose(m["penumbra_rmse"], np.sqrt((diff[region] ** 2).mean()))
+    assert np.isclose(m["penumbra_max_error"], 0.5) and np.isclose(m["max_error"], 0.5)
+    assert m["penumbra_mae"] > 6 * m["mae"]                # 64 / 9 columns: less diluted
+    assert m["penumbra_ssim"] < m["ssim"] < 1.0
+    same = compare_soft(truth, truth, valid)
+    assert same["penumbra_mae"] == 0.0 and np.isclose(same["penumbra_ssim"], 1.0)
+    empty = compare_soft(hard, hard, valid)                # no penumbra at all
+    assert empty["penumbra_pixels"] == 0 and np.isnan(empty["penumbra_ssim"])
+    assert empty["penumbra_mae"] == 0.0
 
 
 def _gbuffer(points, normals):

@@ -213,6 +213,8 @@ def test_bench_soft_method_reports_embree_time_at_equal_error(tmp_path):
     row = case["methods"]["soft_tiled"]
     assert {"mae", "rmse", "max_error", "ssim"} <= set(row["error"])
     assert "embree_seconds_at_equal_error" in row
+    assert {"penumbra_mae", "penumbra_ssim"} <= set(row["error"])
+    assert set(row["embree_seconds_at_equal"]) >= {"mae", "penumbra_mae", "penumbra_ssim"}
 
 
 def test_embree_time_at_equal_error_interpolates_log_log():
@@ -222,6 +224,19 @@ def test_embree_time_at_equal_error_interpolates_log_log():
     assert embree_seconds_at_error(curve, 0.02) == pytest.approx(4.0)
     assert embree_seconds_at_error(curve, 0.001) is None
     assert embree_seconds_at_error(curve, 0.5) is None
+
+
+def test_embree_time_at_equal_error_on_each_metric():
+    from shadowlab.harness.bench import embree_seconds_at_equal
+
+    curve = [{"mae": 0.04, "ssim": 0.9, "penumbra_mae": 0.4, "seconds": 1.0},
+             {"mae": 0.01, "ssim": 0.99, "penumbra_mae": 0.1, "seconds": 16.0}]
+    at = embree_seconds_at_equal(curve, {"mae": 0.02, "ssim": 0.9, "penumbra_mae": 0.01,
+                                         "valid_pixels": 5})
+    assert at["mae"] == pytest.approx(4.0)
+    assert at["ssim"] == pytest.approx(1.0)          # SSIM is matched as 1 - SSIM
+    assert at["penumbra_mae"] is None                 # better than the whole curve
+    assert set(at) == {"mae", "ssim", "penumbra_mae"}
 
 
 def test_bench_bad_arguments_exit_2(tmp_path, capsys):

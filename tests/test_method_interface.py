@@ -141,3 +141,36 @@ def test_evaluate_reports_warm_medians_and_compile_apart(frame):
         v for r in [ev.cold] + ev.runs for k, v in r.items() if k.endswith("_compile")))
     assert ev.error["mismatches"] == 0 and ev.error["unexplained"] == 0
     assert np.array_equal(ev.reference, sl.reference_shadows(*frame))
+
+
+def test_presets_replace_defaults_explicit_options_win_and_bad_values_are_refused(frame):
+    name = "_toy_presets"
+
+    @registry.register(name, doc="test", kind="approximate", counters=("samples",),
+                       options={"level": Option(2, "a level", kind=int, minimum=0, maximum=4),
+                                "mode": Option("exact", "a mode", allowed=("exact", "fast"))},
+                       presets={"paper": {"level": 1, "mode": "fast"}})
+    def toy(scene, gbuf, light, *, precision, shadow_eps, level, mode):
+        assert mode in ("exact", "fast")                 # 'preset' is not passed on
+        return ShadowResult(np.ones(gbuf.valid.shape, bool), {"samples": level}, {})
+    try:
+        default = registry.resolve_options(name, {})
+        assert (default["preset"], default["level"], default["mode"]) == ("accurate", 2, "exact")
+        paper = registry.resolve_options(name, {"preset": "paper"})
+        assert (paper["level"], paper["mode"]) == (1, "fast")
+        mixed = registry.resolve_options(name, {"preset": "paper", "level": 4})
+        assert (mixed["level"], mixed["mode"]) == (4, "fast")
+        res = sl.compute_shadows(*frame, method=name, preset="paper")
+        assert res.counters["samples"] == 1 and res.options["preset"] == "paper"
+        assert registry.available()[name]["presets"] == {"paper": {"level": 1, "mode": "fast"}}
+        with pytest.raises(MethodError, match="preset='papr' is not allowed.*'accurate', 'paper'"):
+            registry.resolve_options(name, {"preset": "papr"})
+        with pytest.raises(MethodError, match="mode='slow'"):     # a bad preset value
+            registry.register(name + "_bad", doc="t", kind="approximate",
+                              options={"mode": Option("exact", "m", allowed=("exact",))},
+                              presets={"paper": {"mode": "slow"}})(toy)
+        # methods without presets have no 'preset' option
+        assert "preset" not in registry.get("psv").options
+    finally:
+        registry._REGISTRY.pop(name)
+        registry._REGISTRY.pop(name + "_bad", None)

@@ -136,3 +136,26 @@ def test_tiny_sphere_light_agrees_with_hard_shadows():
     soft = soft_reference(scene, g, SphereLight(position=(1, 6, 0.5), radius=1e-4),
                           rays_per_pixel=4)
     assert np.mean((soft > 0.5) == hard) > 0.995
+
+
+def test_soft_reference_traces_only_samples_above_the_tangent_plane(monkeypatch):
+    """Samples below a pixel's tangent plane are blocked without a ray: a sun grazing the
+    ground from below its horizon costs no ray on the ground."""
+    from shadowlab.reference import raycast
+
+    traced = []
+    real = raycast.segments_occluded
+
+    def counting(scene, p, n, **kw):
+        traced.append(len(p))
+        return real(scene, p, n, **kw)
+
+    monkeypatch.setattr(raycast, "segments_occluded", counting)
+    scene = sphere_over_plane(subdivisions=2)
+    g = render_gbuffer(scene, Camera(eye=(0, 7, 7), target=(0, 0.5, 0), resolution=(24, 24),
+                                     near=0.5, far=50))
+    ground = g.valid & (np.abs(g.position[..., 1]) < 1e-9)
+    sun = SphereLight(direction=(0.0, 0.2, -1.0), angular_radius_deg=3.0)   # from below
+    vis = soft_reference(scene, g, sun, rays_per_pixel=16, seed=0)
+    assert ground.sum() > 100 and not vis[ground].any()
+    assert 0 < sum(traced) <= 16 * int((g.valid & ~ground).sum())

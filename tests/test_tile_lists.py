@@ -176,3 +176,13 @@ def test_settings_refuse_bad_values():
         _settings(on_overflow="drop")
     with pytest.raises(ValueError, match="capacity"):
         _settings(capacity=0)
+
+
+def test_no_groups_give_no_cones():
+    """Light-facing culling can remove every triangle (a one-sided occluder facing the
+    light): zero groups give zero cones, not a reshape error."""
+    tri = np.zeros((4, 3, 3))
+    for light in (SphereLight(direction=(0, -1, 0), angular_radius_deg=1.0),
+                  SphereLight(position=(0, 10, 0), radius=1.0)):
+        cone = cn.blocker_cones(tri, np.zeros((0, 64), np.int64), light)
+        assert all(len(v) == 0 for v in cone.values())

@@ -78,6 +78,9 @@ class ExperimentConfig(BaseModel):
     crop: number(int, ge=1, optional=True) = None
     banding_sun_deg: number(float, gt=0, lt=90, unit=" (degrees)", optional=True) = None
     check_banding: Annotated[Optional[StrictBool], _wanted("true or false")] = None
+    edge_sun_deg: number(float, gt=0, lt=45, unit=" (degrees)", optional=True) = None
+    edge_resolution: number(int, ge=16, optional=True) = None
+    raster_fragments: number(int, ge=1, optional=True) = None
     # checks and claims
     max_mismatch_fraction: number(float, **_FRACTION) = None
     max_bad_pixels_exact: number(int, ge=0, optional=True) = None

@@ -129,6 +129,9 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("csm_culled_per_pixel", "map", "1 where the prepass culled the pixel's sample"),
     Counter("csm_false_shadows", "int", "CSM: culled samples that the exact test over every "
             "caster finds lit; must be 0 (-1 when the check is off)"),
+    Counter("raster_lanes", "int", "pixel lanes the vectorized rasterizer executed: steps x "
+            "pixels of each batch (deferred: flush steps; rasterized_triangles of them did "
+            "work)"),
     Counter("cas_failures", "int", "reference kernels: compare-and-swap operations that lost a "
             "race (the slot was taken by another thread first); 0 in a serial schedule"),
 ]}
@@ -152,6 +155,6 @@ if __name__ == "__main__":
     # python -m shadowlab.core.counters > docs/counters.md
     print("# Counters\n")
     print("Every method and reference kernel reports counters by these names "
-          "(`shadowlab/counters.py` is the source; regenerate this file with "
+          "(`shadowlab/core/counters.py` is the source; regenerate this file with "
           "`python -m shadowlab.core.counters > docs/counters.md`).\n")
     print(markdown_table())

@@ -72,6 +72,19 @@ class StageTimer:
         self.times[name] = self.times.get(name, 0.0) + time.perf_counter() - t0
         return out
 
+    @contextlib.contextmanager
+    def remainder(self, name: str):
+        """Time the block's work not recorded by any other stage (host code between the
+        timed stages: gathers, compactions, copies) as stage ``name``: the block's wall
+        time minus everything (run and compile) recorded into this timer meanwhile. Wrap a
+        method's whole body in it so its ``total`` is its whole run time, compile apart."""
+        before = sum(self.times.values())
+        t0 = time.perf_counter()
+        yield
+        wall = time.perf_counter() - t0
+        inner = sum(self.times.values()) - before
+        self.times[name] = self.times.get(name, 0.0) + max(wall - inner, 0.0)
+
     @property
     def total(self) -> float:
         """Run time of all stages, compile excluded."""

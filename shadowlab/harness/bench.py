@@ -42,15 +42,38 @@ def _soft_curve(scene, gbuf, light, truth, eps, progress) -> list[dict]:
     return curve
 
 
-def embree_seconds_at_error(curve: list[dict], mae: float) -> float | None:
-    """Embree soft-reference time for the MAE ``mae``, interpolated log-log along
-    ``curve``; None outside the measured range."""
-    pts = sorted((c["mae"], c["seconds"]) for c in curve if c["mae"] > 0)
+#: the soft metrics Embree is matched on (lower is better; SSIM as 1 - SSIM)
+EQUAL_ERROR_METRICS = ("mae", "rmse", "max_error", "ssim", "penumbra_mae", "penumbra_rmse",
+                       "penumbra_max_error", "penumbra_ssim")
+
+
+def _as_error(metric: str, value: float) -> float:
+    return 1.0 - value if metric.endswith("ssim") else value
+
+
+def embree_seconds_at_error(curve: list[dict], value: float, metric: str = "mae") -> float | None:
+    """Embree soft-reference time at which its ``metric`` equals ``value``, interpolated
+    log-log along ``curve`` (its points sorted by that error; SSIM as 1 - SSIM); None
+    outside the measured range or where the value is not finite."""
+    if value is None or not np.isfinite(value):
+        return None
+    target = _as_error(metric, value)
+    pts = sorted((_as_error(metric, c[metric]), c["seconds"]) for c in curve
+                 if metric in c and np.isfinite(c[metric]) and _as_error(metric, c[metric]) > 0)
+    if not pts or target <= 0:
+        return None
     errs = np.log([p[0] for p in pts])
     secs = np.log([p[1] for p in pts])
-    if not pts or not (errs[0] <= np.log(mae) <= errs[-1]):
+    if not (errs[0] <= np.log(target) <= errs[-1]):
         return None
-    return float(np.exp(np.interp(np.log(mae), errs, secs)))
+    return float(np.exp(np.interp(np.log(target), errs, secs)))
+
+
+def embree_seconds_at_equal(curve: list[dict], error: dict) -> dict:
+    """{metric: Embree seconds at the method's value of that metric, or None} for every
+    metric of ``EQUAL_ERROR_METRICS`` the method's ``error`` has."""
+    return {m: embree_seconds_at_error(curve, error[m], m) for m in EQUAL_ERROR_METRICS
+            if m in error}
 
 
 def default_cases(size: str = "full") -> list[dict]:
@@ -98,8 +121,10 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
                "ratio_to_reference": ev.seconds / ref_median if ref_median > 0 else None,
                "counters": counters, "error": ev.error}
         if ev.kind is MethodKind.SOFT:
+            curve = out["soft_reference"]["curve"]
             row["embree_seconds_at_equal_error"] = embree_seconds_at_error(
-                out["soft_reference"]["curve"], row["error"]["mae"])
+                curve, row["error"]["mae"])
+            row["embree_seconds_at_equal"] = embree_seconds_at_equal(curve, row["error"])
             row.pop("ratio_to_reference")
         if "tests" in counters and ev.seconds > 0:
             row["tests_per_second"] = counters["tests"] / ev.seconds
@@ -159,6 +184,16 @@ def format_bench(results: dict) -> str:
                              f"RMSE {m['error']['rmse']:.4f} max {m['error']['max_error']:.3f} "
                              f"SSIM {m['error']['ssim']:.4f}; Embree at equal MAE: "
                              f"{'-' if at is None else f'{1000 * at:.0f} ms'}")
+                e = m["error"]
+                if "penumbra_mae" in e:
+                    lines.append(f"  {'':<16} penumbra ({e['penumbra_pixels']} px): MAE "
+                                 f"{e['penumbra_mae']:.4f} RMSE {e['penumbra_rmse']:.4f} max "
+                                 f"{e['penumbra_max_error']:.3f} SSIM {e['penumbra_ssim']:.4f}")
+                equal = m.get("embree_seconds_at_equal", {})
+                if equal:
+                    lines.append(f"  {'':<16} Embree at equal: " + ", ".join(
+                        f"{k} {'-' if v is None else f'{1000 * v:.0f} ms'}"
+                        for k, v in equal.items()))
                 continue
             stages = ", ".join(f"{k} {1000 * v:.1f}" for k, v in m["stages"].items()
                                if k != "total")

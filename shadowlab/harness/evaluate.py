@@ -12,7 +12,8 @@ Reference and metric are chosen here and nowhere else, from the method's kind:
   ``unexplained``: mismatches on no shadow boundary (``analysis.boundary``; None when
   there are more than ``EXPLAIN_LIMIT`` mismatches to examine);
 - ``soft`` methods: the Monte Carlo visibility (``soft_reference``), compared with
-  ``analysis.compare_soft`` (MAE, RMSE, max error, SSIM).
+  ``analysis.compare_soft`` (MAE, RMSE, max error, SSIM over the valid pixels, and the
+  same over the penumbra region: true visibility strictly between 0 and 1, dilated).
 """
 
 from __future__ import annotations
@@ -104,7 +105,8 @@ def hard_metric(result: ShadowResult, truth: np.ndarray, refs: References,
 
 
 def soft_metric(result: ShadowResult, truth: np.ndarray, refs: References) -> dict:
-    """``compare_soft``: MAE, RMSE, max error and SSIM on valid pixels."""
+    """``compare_soft``: MAE, RMSE, max error and SSIM on valid pixels and on the
+    penumbra region (``penumbra_*``)."""
     return compare_soft(result.lit, truth, refs.gbuf.valid)
 
 

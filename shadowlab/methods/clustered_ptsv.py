@@ -537,8 +537,7 @@ def _all_valid_samples(gbuf, facing_samples):
 #: ``ptsv`` the paper comparisons also build the tile tree over the full depth buffer
 #: (every valid pixel, ``tree_samples="all"``). The defaults stay the exact
 #: configuration; differences and costs: docs/clustered_ptsv.md ("The papers'
-#: configuration"). Once the methods' generic ``preset`` option is available these are
-#: their ``"paper"`` presets.
+#: configuration"). They are registered as each method's ``preset="paper"``.
 PAPER_OPTIONS = {
     "clustered_ptsv": {"front_face_culling": True, "cull_side": "facing", "bias": "cap",
                        "prune": True},
@@ -601,6 +600,7 @@ TRAVERSAL_DECLARATION = {
 @register("clustered_ptsv",
           doc="per-triangle shadow volumes over a view-sample cluster hierarchy",
           paper="Sintorn et al. 2014", **TRAVERSAL_DECLARATION,
+          presets={"paper": PAPER_OPTIONS["clustered_ptsv"]},
           options={**COMMON_TRAVERSAL_OPTIONS,
                    "bounds": Option("explicit", "node boxes implicit from keys or explicit "
                                     "(min/max of the node's samples)",

@@ -9,7 +9,12 @@ A method is a function ``fn(scene, gbuf, light, **options) -> ShadowResult`` plu
 - ``options``: ``{name: Option}``; the registry turns them into one pydantic model
   (``MethodInfo.model``) that validates, fills defaults and refuses unknown names;
 - ``counters``: the names (from ``shadowlab.core.counters.COUNTERS``) every result carries;
-- ``stages``: the names of the timing stages the method may report (seconds).
+- ``stages``: the names of the timing stages the method may report (seconds);
+- ``presets``: optional named option sets, ``{name: {option: value}}``. A method with
+  presets gets the option ``preset`` (default ``DEFAULT_PRESET``, "accurate": the
+  options' own defaults, which are the method's most accurate configuration); a named
+  preset (e.g. "paper": the paper's own choices) replaces those defaults, and options
+  given explicitly still win over it.
 
 The registry (``registry.py``) owns what every method would otherwise repeat:
 validation, the light check, stamping name, options and total time into the result.
@@ -29,6 +34,10 @@ import pydantic
 # run config's ``reference.shadow_eps`` and the boundary analysis use it.
 from ..reference.raycast import DEFAULT_SHADOW_EPS
 from ..scene.view import DirectionalLight, PointLight, SphereLight
+
+
+#: the preset every method with presets starts from: its options' own defaults
+DEFAULT_PRESET = "accurate"
 
 
 class MethodError(ValueError):
@@ -177,6 +186,9 @@ class MethodInfo:
         stages: timing stage names the method may report (a run reports a subset).
         kernel: the Warp reference kernel version, ``fn(scene, gbuf, light, **options)``,
             or None (set by ``registry.register_kernel``).
+        presets: ``{name: {option: value}}`` named option sets besides the defaults
+            (``DEFAULT_PRESET``); empty when the method has none (and then no ``preset``
+            option).
     """
 
     name: str
@@ -188,6 +200,7 @@ class MethodInfo:
     stages: tuple[str, ...] = ()
     paper: str = ""
     kernel: Callable | None = None
+    presets: dict = dataclasses.field(default_factory=dict)
 
     @property
     def exact(self) -> bool:
@@ -205,7 +218,17 @@ class MethodInfo:
         return options_model(self.name, tuple(self.options.items()))
 
     def resolve_options(self, options: dict) -> dict:
+        """All options with defaults filled in: the ``preset``'s values where the method
+        has presets, options given explicitly winning; MethodError on bad input."""
+        if self.presets and "preset" in options:
+            name = self.model.validate_one("preset", options["preset"])
+            options = {**self.presets.get(name, {}), **options}
         return self.model.resolve(options)
+
+    def call_options(self, resolved: dict) -> dict:
+        """The resolved options the method function takes (``preset`` is resolved
+        already and not passed on)."""
+        return {k: v for k, v in resolved.items() if not (self.presets and k == "preset")}
 
     def light_problem(self, light) -> str | None:
         """Why ``light`` cannot be used with this method, or None if it can."""
@@ -225,5 +248,15 @@ class MethodInfo:
                               else problem)
 
 
-__all__ = ["DEFAULT_SHADOW_EPS", "MethodError", "MethodInfo", "MethodKind", "Option",
-           "OptionsModel", "options_model"]
+def preset_option(presets: dict) -> Option:
+    """The ``preset`` option of a method with ``presets`` ({name: {option: value}})."""
+    names = (DEFAULT_PRESET,) + tuple(n for n in presets if n != DEFAULT_PRESET)
+    listed = "; ".join(f"{n!r}: " + ", ".join(f"{k}={v!r}" for k, v in vals.items())
+                       for n, vals in presets.items())
+    return Option(DEFAULT_PRESET, f"named option set: {DEFAULT_PRESET!r} = the defaults "
+                  f"(most accurate); {listed}; options given explicitly win",
+                  allowed=names)
+
+
+__all__ = ["DEFAULT_PRESET", "DEFAULT_SHADOW_EPS", "MethodError", "MethodInfo", "MethodKind", "Option",
+           "OptionsModel", "options_model", "preset_option"]

@@ -51,7 +51,7 @@ from .shadow_map import PROJECTIONS, fit_camera
 PREPASSES = ("none", "csm")
 RESOLUTIONS = (256, 512, 1024, 2048, 4096, 8192)
 CSM_DEPTHS = ("corner", "slope")
-#: the poster's configuration (``--set`` these to reproduce it)
+#: the poster's configuration: the method's ``preset="paper"``
 PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "csm_scale": 1,
                 "csm_min_area": 0.0}
 #: most (triangle, node) pairs tested in one call of the pair kernel
@@ -113,6 +113,7 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
                     "list_nonempty_texels", "traced_fragments", "depth_culled_fragments",
                     "csm_texels", "csm_culled", "csm_culled_per_pixel", "csm_false_shadows"),
           stages=("samples", "setup", "light_setup", "csm", "build", "trace", "verify"),
+          presets={"paper": PAPER_PRESET},
           options={
               "prepass": Option("csm", "'none' (Wyman's IZB) or 'csm' (the conservative "
                                 "shadow-map prepass culls surely shadowed samples)",

@@ -13,14 +13,14 @@ planes are PTSV's two 2D silhouette edges of the shadow volume (option
 
 from __future__ import annotations
 
-from .clustered_ptsv import (COMMON_TRAVERSAL_OPTIONS, TRAVERSAL_DECLARATION,
+from .clustered_ptsv import (COMMON_TRAVERSAL_OPTIONS, PAPER_OPTIONS, TRAVERSAL_DECLARATION,
                              run_traversal_method)
 from .registry import register
 
 
 @register("ptsv", doc="per-triangle shadow volumes over a 2D min/max depth tile hierarchy "
           "(8x4 leaf tiles)", paper="Sintorn et al. 2011 (as described in 2014)",
-          **TRAVERSAL_DECLARATION,
+          **TRAVERSAL_DECLARATION, presets={"paper": PAPER_OPTIONS["ptsv"]},
           options={k: v for k, v in COMMON_TRAVERSAL_OPTIONS.items() if k != "leaf_samples"})
 def ptsv(scene, gbuf, light, **opts):
     result, _ = run_traversal_method(scene, gbuf, light, kind="ptsv", method="ptsv",

@@ -15,8 +15,8 @@ import dataclasses
 from typing import Callable
 
 from ..core.counters import check as check_counters
-from .interface import (DEFAULT_SHADOW_EPS, MethodError, MethodInfo, MethodKind, Option,
-                        OptionsModel)
+from .interface import (DEFAULT_PRESET, DEFAULT_SHADOW_EPS, MethodError, MethodInfo,
+                        MethodKind, Option, OptionsModel, preset_option)
 
 COMMON_OPTIONS: dict[str, Option] = {
     "precision": Option("float32", "floating-point precision of the computation",
@@ -32,12 +32,15 @@ _REGISTRY: dict[str, MethodInfo] = {}
 def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
              kind: MethodKind | str | None = None, counters: tuple[str, ...] | None = None,
              stages: tuple[str, ...] = (), exact: bool = True, soft: bool = False,
-             paper: str = ""):
+             paper: str = "", presets: dict[str, dict] | None = None):
     """Decorator that adds a method to the registry.
 
     ``kind`` defaults from the older flags: ``soft`` -> soft, else ``exact`` -> exact,
     else approximate. ``counters`` (names from ``shadowlab.core.counters.COUNTERS``) and
-    ``stages`` are checked on every result.
+    ``stages`` are checked on every result. ``presets`` ({name: {option: value}}, e.g.
+    ``{"paper": {...}}`` for the paper's own choices) add the option ``preset``
+    (default ``DEFAULT_PRESET``: the options' defaults); every preset value is validated
+    here.
     """
     if kind is None:
         kind = MethodKind.SOFT if soft else (MethodKind.EXACT if exact else
@@ -49,10 +52,21 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
     def deco(fn):
         opts = dict(COMMON_OPTIONS)
         opts.update(options or {})
+        sets = {k: dict(v) for k, v in (presets or {}).items()}
+        if sets:
+            if DEFAULT_PRESET in sets or "preset" in opts:
+                raise ValueError(f"method {name!r}: the preset {DEFAULT_PRESET!r} is the "
+                                 "defaults, and 'preset' is not an option name")
+            opts["preset"] = preset_option(sets)
         old = _REGISTRY.get(name)
-        _REGISTRY[name] = MethodInfo(name, fn, doc, opts, kind,
-                                     None if counters is None else tuple(counters),
-                                     tuple(stages), paper, old.kernel if old else None)
+        info = MethodInfo(name, fn, doc, opts, kind,
+                          None if counters is None else tuple(counters),
+                          tuple(stages), paper, old.kernel if old else None, sets)
+        for preset, values in sets.items():
+            if "preset" in values:
+                raise ValueError(f"method {name!r}: preset {preset!r} sets 'preset'")
+            info.model.resolve(values)          # MethodError on a bad preset value
+        _REGISTRY[name] = info
         return fn
     return deco
 
@@ -78,13 +92,14 @@ def names() -> list[str]:
 
 def available() -> dict[str, dict]:
     """Method name -> {doc, kind, exact, soft, kernel, paper, counters, stages,
-    options: {name: {default, allowed, doc}}}."""
+    presets: {name: {option: value}}, options: {name: {default, allowed, doc}}}."""
     _load_builtin()
     return {
         name: {
             "doc": info.doc, "kind": info.kind.value, "exact": info.exact, "soft": info.soft,
             "kernel": info.kernel is not None, "paper": info.paper,
             "counters": list(info.counters or ()), "stages": list(info.stages),
+            "presets": {k: dict(v) for k, v in info.presets.items()},
             "options": {k: {"default": o.default, "allowed": o.describe_allowed(), "doc": o.doc}
                         for k, o in info.options.items()},
         }
@@ -153,7 +168,7 @@ def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
     info = get(method)
     info.check_light(light)
     opts = info.resolve_options(options)
-    result = info.fn(scene, gbuf, light, **opts)
+    result = info.fn(scene, gbuf, light, **info.call_options(opts))
     check_result(info, result)
     return stamp(result, method, opts)
 
@@ -186,7 +201,7 @@ def _load_builtin():
     importlib.import_module("shadowlab.kernels")
 
 
-__all__ = ["BUILTIN_MODULES", "COMMON_OPTIONS", "DEFAULT_SHADOW_EPS", "MethodError",
+__all__ = ["BUILTIN_MODULES", "COMMON_OPTIONS", "DEFAULT_PRESET", "DEFAULT_SHADOW_EPS", "MethodError",
            "MethodInfo", "MethodKind", "Option", "available", "check_light", "check_result",
            "compute_shadows", "get", "light_problem", "names", "options_model", "register",
            "register_kernel", "resolve_options", "run_kernel", "stamp"]

@@ -307,7 +307,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 vis = jnp.clip(1.0 - blocked, 0.0, 1.0)
             else:
                 vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
-            return jnp.where(rel, vis, 0.0), tests, rast, clamp
+            # every step rasterized on every lane of the batch
+            steps = (trips * chunk).astype(jnp.int32)
+            return jnp.where(rel, vis, 0.0), tests, rast, clamp, steps
 
         # Deferred: a first pass over the list only runs the per-pixel quick reject and
         # records the entries passing it as bits (bit b of word w: list slot 32 w + b of
@@ -366,31 +368,32 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 keep = raster_pair(entries[idx], has)
                 return [wd & kp for wd, kp in zip(words, keep)], summary, cur, cur_w
 
+            n_steps = jnp.max(todo)
             words, _, _, _ = jax.lax.fori_loop(
-                0, jnp.max(todo), step,
+                0, n_steps, step,
                 (words, summary, jnp.zeros(shape, jnp.uint32), jnp.zeros(shape, jnp.int32)))
-            return words
+            return words, n_steps
 
         def round_(state):
-            base, words, tests, rast, clamp, alive = state
+            base, words, tests, rast, clamp, alive, steps = state
             end = jnp.minimum(base + words_per_round, n_words)
             _, tests, rast, clamp, bits, summary, _ = jax.lax.fori_loop(
                 base, end, record,
                 (base, tests, rast, clamp, jnp.zeros((words_per_round,) + shape, jnp.uint32),
                  jnp.zeros(shape, jnp.uint32), alive))
-            words = flush(words, base, bits, summary)
+            words, n_steps = flush(words, base, bits, summary)
             alive = functools.reduce(jnp.logical_or, [wd != 0 for wd in words])
-            return end, words, tests, rast, clamp, alive
+            return end, words, tests, rast, clamp, alive, steps + n_steps
 
         def more(state):
-            return (state[0] < n_words) & jnp.any(state[-1] & rel)
+            return (state[0] < n_words) & jnp.any(state[5] & rel)
 
         alive0 = functools.reduce(jnp.logical_or, [wd != 0 for wd in words0])
         state = jax.lax.while_loop(more, round_, (jnp.int32(0), words0, zero, zero, zero,
-                                                  alive0))
-        _, words, tests, rast, clamp, _ = state
+                                                  alive0, jnp.int32(0)))
+        _, words, tests, rast, clamp, _, steps = state
         vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
-        return jnp.where(rel, vis, 0.0), tests, rast, clamp
+        return jnp.where(rel, vis, 0.0), tests, rast, clamp, steps
 
     return run
 
@@ -496,17 +499,28 @@ def _gather(timer, scene, light, cam, depth, relevant, eps, culling: CullSetting
     return Gathered(gathered, g_members, g_cl_cone, g_tri_cone, clusters, after_facing, pad)
 
 
-def soft_tiled_impl(scene, gbuf, light, *, culling: CullSettings, precision, shadow_eps,
-                    grid, rotate, seed, projection, disk_scale, horizon, chunk, mode, method,
-                    defer=False):
+def soft_tiled_impl(scene, gbuf, light, **kwargs):
     """Visibility of every pixel (see the module docstring).
 
     ``culling`` holds the gather and tile-list settings; the rest configure the per-pixel
     evaluation (``mode``: "bitmask" rasterizes into the disk grid, "overlap" sums
     analytic overlap areas). Returns a ``ShadowResult`` whose ``lit`` is float [H, W]
-    visibility in [0, 1].
+    visibility in [0, 1]. Its ``total`` is the whole call's wall time, compile apart:
+    host work between the named stages (gathers, compactions, copies between host and
+    device, the batch loop) is the stage ``host``.
     """
     timer = StageTimer()
+    with timer.remainder("host"):
+        vis_img, counters = _soft_tiled(timer, scene, gbuf, light, **kwargs)
+    timings = dict(timer.times, total=timer.total)
+    return ShadowResult(vis_img, counters, timings)
+
+
+def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, shadow_eps,
+                grid, rotate, seed, projection, disk_scale, horizon, chunk, mode, method,
+                defer=False):
+    """(visibility float [H, W], counters) of :func:`soft_tiled_impl`; stages into
+    ``timer``."""
     cam = gbuf.camera
     h, w = gbuf.shape
     eps = shadow_epsilon(scene, shadow_eps)
@@ -583,6 +597,7 @@ def soft_tiled_impl(scene, gbuf, light, *, culling: CullSettings, precision, sha
             tests = np.zeros((n_tiles, TILE * TILE), np.int64)
             rast = np.zeros((n_tiles, TILE * TILE), np.int64)
             clamped = np.zeros((n_tiles, TILE * TILE), np.int64)
+            raster_lanes = 0
             # tiles sorted by chunk count, in batches of a fixed size: one compiled shape,
             # and every batch loops only as long as its longest list
             work = np.flatnonzero(active)
@@ -597,13 +612,14 @@ def soft_tiled_impl(scene, gbuf, light, *, culling: CullSettings, precision, sha
             cnts = np.zeros(batch, np.int32)
             cnts[: len(members_t)] = counts[members_t]
             trips = jnp.asarray(int(nchunks[members_t].max()), jnp.int32)
-            v, te, ra, cl = timer.run("eval", kernel, jnp.asarray(tiles), jnp.asarray(offs),
+            v, te, ra, cl, st = timer.run("eval", kernel, jnp.asarray(tiles), jnp.asarray(offs),
                                       jnp.asarray(cnts), trips, *args_common)
             n = len(members_t)
             vis[members_t] = np.asarray(v)[:n]
             tests[members_t] = np.asarray(te)[:n]
             rast[members_t] = np.asarray(ra)[:n]
             clamped[members_t] = np.asarray(cl)[:n]
+            raster_lanes += int(st) * batch * TILE * TILE
 
     with timer.stage("output"):
         def to_image(values, fill=0):
@@ -641,9 +657,9 @@ def soft_tiled_impl(scene, gbuf, light, *, culling: CullSettings, precision, sha
         "rasterized_triangles": int(rast.sum()),
         "rasterized_per_pixel": to_image(rast),
         "near_clamp_per_pixel": to_image(clamped),
+        "raster_lanes": raster_lanes,
     }
-    timings = dict(timer.times, total=timer.total)
-    return ShadowResult(vis_img, counters, timings)
+    return vis_img, counters
 
 
 def split_culling(opts: dict) -> tuple[CullSettings, dict]:
@@ -660,9 +676,10 @@ COMMON_SOFT = {
                          "silhouette cone) or the paper's 'sin'", allowed=("tan", "sin")),
     "horizon": Option(True, "clear the disk below the receiver's tangent plane (the "
                       "reference counts it as blocked); False = the paper", allowed=(True, False)),
-    "face_cull": Option("front", "gather: 'front' culls triangles facing all of the light "
-                        "(the paper; exact for closed meshes and height fields), 'back' the "
-                        "opposite, 'none' keeps both (two-sided soup)",
+    "face_cull": Option("none", "gather: 'none' keeps every triangle (exact, also for "
+                        "two-sided soup); 'front' culls triangles facing all of the light "
+                        "(the paper; loses occluders where a grazing receiver's bias skips "
+                        "the entry face, and on soup), 'back' the opposite",
                         allowed=("none", "front", "back")),
     "gather_cull": Option(True, "view-frustum culling of cluster and triangle cones",
                           allowed=(True, False)),
@@ -678,38 +695,49 @@ COMMON_SOFT = {
                      allowed=(True, False)),
     "capacity": Option(2048, "per-tile triangle list capacity (the paper's shared-memory "
                        "list; 2048 x 4 bytes = 8 KiB)", kind=int, minimum=1),
-    "on_overflow": Option("truncate", "a tile whose list overflows: 'truncate' keeps the "
-                          "first `capacity` entries (the paper; counted and shown), 'full' "
-                          "evaluates all", allowed=("truncate", "full")),
+    "on_overflow": Option("full", "a tile whose list overflows (counted and shown either "
+                          "way): 'full' evaluates its whole list (exact), 'truncate' only the "
+                          "first `capacity` entries (the paper; too bright there)",
+                          allowed=("full", "truncate")),
     "chunk": Option(4, "list entries per unrolled loop step", allowed=(1, 2, 4, 8)),
 }
 
+
+#: the paper's own choices where they differ from the (accurate) defaults, shared by
+#: both soft methods; docs/soft_tiled.md lists each difference and its cost
+PAPER_CULLING = {"face_cull": "front", "on_overflow": "truncate", "disk_scale": "sin",
+                 "horizon": False}
+PAPER_PRESETS = {"soft_tiled": {"paper": {"projection": "paper", **PAPER_CULLING}},
+                 "soft_overlap_sum": {"paper": dict(PAPER_CULLING)}}
 
 #: what both soft methods declare to the registry
 SOFT_DECLARATION = {
     "kind": "soft",
     "stages": ("setup", "gather", "gather_test", "tile_bounds", "tile_cull", "tile_lists",
-               "eval_setup", "eval", "output"),
+               "eval_setup", "eval", "output", "host"),
     "counters": ("samples", "casters", "culled_triangles", "tests", "tests_per_pixel",
                  "soft_clusters", "light_facing_survivors", "gather_clusters",
                  "gather_triangles", "active_tiles", "tiles", "tile_cluster_pairs",
                  "tile_cluster_survivors", "tile_triangle_pairs", "tile_triangles",
                  "tile_triangles_max", "tile_list_lengths", "tile_triangles_per_pixel",
                  "overflow_tiles", "overflow_tiles_per_pixel", "dropped_entries",
-                 "rasterized_triangles", "rasterized_per_pixel", "near_clamp_per_pixel")}
+                 "rasterized_triangles", "rasterized_per_pixel", "near_clamp_per_pixel",
+                 "raster_lanes")}
 
 
 @register("soft_tiled", **SOFT_DECLARATION,
           doc="tiled per-triangle soft shadows: sun-disk bitmask rasterizer with cone "
               "culling per 16x16 tile", paper="Kalbertodt 2023",
+          presets=PAPER_PRESETS["soft_tiled"],
           options={"grid": GRID_OPTION,
                    "rotate": Option(True, "random grid rotation per pixel (against banding)",
                                     allowed=(True, False)),
                    "seed": Option(0, "seed of the per-pixel rotation hash", kind=int,
                                   minimum=0),
-                   "projection": Option("paper", "'paper': divide by max(1e-4, s |z|) with "
-                                        "abs(); 'homogeneous': exact 3-D edge functions",
-                                        allowed=("paper", "homogeneous")),
+                   "projection": Option("homogeneous", "'homogeneous': exact 3-D edge "
+                                        "functions; 'paper': divide by max(1e-4, s |z|) with "
+                                        "abs() (wrong where a caster nears the receiver)",
+                                        allowed=("homogeneous", "paper")),
                    "defer": Option(True, "rasterize only the pairs passing the per-pixel "
                                    "quick reject (queued per pixel) and stop a pixel whose "
                                    "grid is empty; False = rasterize every visited pair "
@@ -725,6 +753,7 @@ def soft_tiled(scene, gbuf, light, **opts):
 @register("soft_overlap_sum", **SOFT_DECLARATION,
           doc="naive comparison: sum of analytic disk-triangle overlap areas (double-counts "
               "overlapping occluders)", paper="Kalbertodt 2023",
+          presets=PAPER_PRESETS["soft_overlap_sum"],
           options=dict(COMMON_SOFT))
 def soft_overlap_sum(scene, gbuf, light, **opts):
     culling, rest = split_culling(opts)

@@ -294,7 +294,7 @@ def soft_reference(scene: Scene, gbuf: GBuffer, light: SphereLight, rays_per_pix
     tangent plane at unit distance) is sampled area-uniformly, without cosine
     weighting: ``rays_per_pixel`` is rounded up to a square k*k, one jittered sample per
     stratum of the concentric disk map. A light sample below the surface's tangent
-    plane counts as blocked. Each light sample is tested with the same segment test
+    plane counts as blocked and is not traced. Each light sample above it is tested with the same segment test
     as :func:`reference_shadows`.
 
     Returns:
@@ -345,15 +345,22 @@ def soft_reference(scene: Scene, gbuf: GBuffer, light: SphereLight, rays_per_pix
         dirs = target - p[:, None]
         dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
         above = np.einsum("mri,mi->mr", dirs, nrm[lo:hi]) > 0
-        flat_p = np.repeat(p, n_rays, axis=0)
-        flat_n = np.repeat(nrm[lo:hi], n_rays, axis=0)
-        if light.is_sun:
-            blocked = segments_occluded(scene, flat_p, flat_n, light_dirs=dirs.reshape(-1, 3),
-                                        eps=eps)
-        else:
-            blocked = segments_occluded(scene, flat_p, flat_n,
-                                        light_points=target.reshape(-1, 3), eps=eps)
-        vis[lo:hi] = (above & ~blocked.reshape(m, n_rays)).mean(axis=1)
+        # only the samples above the tangent plane are traced (the others are blocked
+        # anyway): a pixel facing away from the whole light costs no ray
+        sel = np.flatnonzero(above.reshape(-1))
+        rows = sel // n_rays
+        flat_p = p[rows]
+        flat_n = nrm[lo:hi][rows]
+        lit = np.zeros(m * n_rays, bool)
+        if len(sel):
+            if light.is_sun:
+                blocked = segments_occluded(scene, flat_p, flat_n,
+                                            light_dirs=dirs.reshape(-1, 3)[sel], eps=eps)
+            else:
+                blocked = segments_occluded(scene, flat_p, flat_n,
+                                            light_points=target.reshape(-1, 3)[sel], eps=eps)
+            lit[sel] = ~blocked
+        vis[lo:hi] = lit.reshape(m, n_rays).mean(axis=1)
     out = np.zeros(gbuf.valid.size)
     out[valid_idx] = vis
     return out.reshape(gbuf.valid.shape)

@@ -14,7 +14,10 @@ dict of arrays (the leading axes index cones):
 - ``always`` bool [...]: no finite cone (the blocker is too close to a sphere light).
 
 The tests are conservative: they may keep a cone that shadows nothing, never drop one
-that shadows something.
+that shadows something, also in float32 far from the origin: every comparison is
+relaxed by a bound on its rounding error, ``ROUND_C`` units in the last place of the
+magnitudes involved (:func:`rounding_slack`; the argument is in docs/soft_tiled.md,
+"Culling in float32").
 """
 
 from __future__ import annotations
@@ -29,6 +32,19 @@ from ..core.capacity import bucket
 from ..scene.view import SphereLight
 
 GOLDEN_ITERS = 16       # golden-section steps of the capsule test
+ROUND_C = 64            # rounding slack, in unit roundoffs of the largest magnitude
+
+
+def rounding_slack(dtype, *magnitudes):
+    """ROUND_C * u * (sum of ``magnitudes``), u the unit roundoff of ``dtype``: a bound on
+    the rounding error of the cone distances and dot products computed here from inputs
+    of those magnitudes (world units; see docs/soft_tiled.md)."""
+    u = float(jnp.finfo(dtype).eps) / 2
+    return ROUND_C * u * sum(magnitudes)
+
+
+def _norm3(v):
+    return jnp.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 def blocker_cones(tri: np.ndarray, groups: np.ndarray | None, light: SphereLight,
@@ -48,7 +64,7 @@ def blocker_cones(tri: np.ndarray, groups: np.ndarray | None, light: SphereLight
         pts = tri                                              # [n, 3, 3]
         mask = np.ones(tri.shape[:2], bool)
     else:
-        pts = tri[np.maximum(groups, 0)].reshape(len(groups), -1, 3)
+        pts = tri[np.maximum(groups, 0)].reshape(len(groups), 3 * groups.shape[1], 3)
         mask = np.repeat(groups >= 0, 3, axis=1)
     big = np.where(mask[..., None], pts, np.nan)
     lo = np.nanmin(big, axis=1)
@@ -89,7 +105,11 @@ def _cone_dist(p, apex, axis, sin_a, cos_a):
     v = tuple(p[i] - apex[i] for i in range(3))
     h = v[0] * axis[0] + v[1] * axis[1] + v[2] * axis[2]
     vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-    q = jnp.sqrt(jnp.maximum(vv - h * h, 0.0))
+    # the distance from the axis as |v x axis|, not sqrt(|v|^2 - h^2): no cancellation
+    # (that form loses half the digits, an error of sqrt(u) |v|)
+    c = (v[1] * axis[2] - v[2] * axis[1], v[2] * axis[0] - v[0] * axis[2],
+         v[0] * axis[1] - v[1] * axis[0])
+    q = _norm3(c)
     side = q * cos_a - h * sin_a
     return jnp.where(side <= 0, 0.0,
                      jnp.where(h * cos_a + q * sin_a >= 0, side, jnp.sqrt(vv)))
@@ -134,10 +154,15 @@ def cone_hits_capsule(cone, s0, s1, r0, r1):
     t = 0.5 * (lo + hi)
     lip = jnp.sqrt(ds[0] ** 2 + ds[1] ** 2 + ds[2] ** 2) + jnp.abs(r1 - r0)
     best = jnp.minimum(jnp.minimum(f(t), f(jnp.zeros_like(t))), f(jnp.ones_like(t)))
-    meets = best - lip * (hi - lo) <= 0
+    # rounding: every f and dot product below is computed from inputs of at most this
+    # magnitude (points of the capsule, the apex, radii, t0)
+    size = (_norm3(apex) + jnp.maximum(_norm3(s0), _norm3(s1)) + jnp.abs(r0) + jnp.abs(r1)
+            + jnp.abs(jnp.where(jnp.isfinite(cone["t0"]), cone["t0"], 0.0)))
+    slack = rounding_slack(r0.dtype, size)
+    meets = best - lip * (hi - lo) <= slack
     reach = jnp.maximum(s0[0] * axis[0] + s0[1] * axis[1] + s0[2] * axis[2] + r0,
                         s1[0] * axis[0] + s1[1] * axis[1] + s1[2] * axis[2] + r1)
-    return (meets & (reach >= cone["t0"])) | cone["always"]
+    return (meets & (reach + slack >= cone["t0"])) | cone["always"]
 
 
 def cone_outside_plane(cone, normal, offset):
@@ -153,8 +178,11 @@ def cone_outside_plane(cone, normal, offset):
     cap_c = apex + h[..., None] * axis
     cap_r = h * sa / jnp.maximum(ca, 1e-30)
     lateral = jnp.sqrt(jnp.maximum(1 - nd * nd, 0.0))
-    cap_out = jnp.sum(normal * cap_c, -1) + offset + cap_r * lateral < 0
-    return cap_out & (nd <= -sa) & ~cone["always"]
+    dtype = nd.dtype
+    slack = rounding_slack(dtype, jnp.sqrt(jnp.sum(apex * apex, -1)), h, cap_r,
+                           jnp.abs(offset))
+    cap_out = jnp.sum(normal * cap_c, -1) + offset + cap_r * lateral < -slack
+    return cap_out & (nd <= -sa - rounding_slack(dtype, 1.0)) & ~cone["always"]
 
 
 @jax.jit
