@@ -173,12 +173,14 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
          "measured": f"visibility bit-identical to the unculled run for "
                      f"{int(arrays['same_as_unculled'].sum())} of {len(v)} bounds",
          "holds": bool(arrays["same_as_unculled"].all())},
-        {"claim": "front-face culling removes more triangles than back-face culling "
+        {"id": "k23.ffc",
+         "claim": "front-face culling removes more triangles than back-face culling "
                   "(terrain points towards the light)",
          "measured": f"light-facing survivors: front culled {front}, back culled {back} "
                      f"(first run's face_cull: {arrays['face_cull'][0]})",
          "holds": bool(arrays["face_cull"][0] == "front" and front < back)},
-        {"claim": "the half-z split helps less than expected",
+        {"id": "k23.halfz",
+         "claim": "the half-z split helps less than expected",
          "measured": f"list entries per tile {cap[4]:.1f} -> {half[4]:.1f}, visited per "
                      f"pixel {cap[5]:.1f} -> {half[5]:.1f}",
          "holds": bool(half[5] > 0.75 * cap[5])},

@@ -307,6 +307,7 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
     out = []
     for g in ("16x16", "31x3"):
         out.append({
+            "id": "k23.rotation",
             "claim": f"randomly rotating the {g} grid trades banding for noise",
             "measured": f"band amplitude {bf[g]:.4f} -> {bf[g + ' rot']:.4f}, noise "
                         f"{nf[g]:.4f} -> {nf[g + ' rot']:.4f}, penumbra MAE "
@@ -321,6 +322,7 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
     i_fine = labels.index(f"{cfg['grids'][-1]}")
     i_sum = labels.index("overlap sum")
     out.append({
+        "id": "k23.overlap_sum",
         "claim": "summing overlap areas double-counts; the bitmask union does not",
         "measured": f"MAE overlap sum {arrays['mae'][i_sum]:.5f} vs {labels[i_fine]} "
                     f"{arrays['mae'][i_fine]:.5f}",
@@ -329,12 +331,14 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
     ns = dict(zip(g, arrays["raster_ns_per_pair"]))
     if "16x16" in ns and "31x3" in ns:
         out.append({
+            "id": "k23.grid_31xn",
             "claim": "rasterizing into 31x3 is cheaper than into 16x16 (paper: 2.1 vs 5 ms)",
             "measured": f"{ns['31x3']:.1f} vs {ns['16x16']:.1f} ns per pair (JAX on CPU, "
                         "shared machine)",
             "holds": bool(ns["31x3"] < ns["16x16"])})
     if "31x7" in ns and "31x3" in ns:
         out.append({
+            "id": "k23.grid_31xn",
             "claim": "the cost grows with the number of lines (31x3 < 31x7; paper 2.1 vs 3.1 ms)",
             "measured": f"{ns['31x3']:.1f} vs {ns['31x7']:.1f} ns per pair",
             "holds": bool(ns["31x3"] < ns["31x7"])})

@@ -101,6 +101,7 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
     for name in ("paper, front", "paper preset"):
         r = t[v.index(name)]
         out.append({
+            "id": "k23.clamp",
             "claim": f"abs() and the 1e-4 clamp introduce no artifacts ({name})",
             "measured": f"MAE {r[1]:.4f} (max {r[2]:.2f}) on {int(r[0])} px where they act, "
                         f"{r[3]:.5f} (max {r[4]:.2f}) elsewhere; {int(r[5])} px off by > 0.1",
