@@ -174,7 +174,7 @@ def run_kernel(scene, gbuf, light, method: str, **options):
 
 # Modules under shadowlab.methods whose import registers their methods.
 BUILTIN_MODULES: tuple[str, ...] = ("brute_force", "psv", "clustered_ptsv", "ptsv", "stencil",
-                                    "soft_tiled")
+                                    "soft_tiled", "silhouette")
 
 
 def _load_builtin():
