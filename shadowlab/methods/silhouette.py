@@ -104,6 +104,35 @@ def slot_signs_planes(a, b, o, light):
     return jnp.sign(v).astype(jnp.int32)
 
 
+def record_multiplicity(adj, s_t: np.ndarray, verts: np.ndarray, light, multiplicity: str
+                        ) -> np.ndarray:
+    """Algorithm 1: int32 [R], the multiplicity of every edge record.
+
+    Args:
+        adj: the scene's :class:`~shadowlab.scene.adjacency.Adjacency`.
+        s_t: int32 [m] per scene triangle s_T (0 = casts nothing).
+        verts: [V, 3] eye-relative welded vertices (working dtype).
+        light: [4] eye-relative homogeneous light (working dtype).
+        multiplicity: "sorted" (each slot adds parity * s_T: +1 for the opposite vertex
+            below A or above B, -1 between them), "unsorted" or "planes" (each slot
+            evaluates its own expression; slots of triangles with s_T = 0 add nothing).
+    """
+    tri_k, opp_k = adj.triangle, adj.opposite
+    slot = tri_k >= 0
+    rv = adj.record_vertices
+    if multiplicity == "sorted":
+        a_, b_ = rv[:, :1], rv[:, 1:]
+        parity = np.where((a_ < opp_k) & (opp_k < b_), -1, 1)
+        contrib = parity * s_t[np.maximum(tri_k, 0)]
+    else:
+        fn = slot_signs_unsorted if multiplicity == "unsorted" else slot_signs_planes
+        contrib = np.asarray(fn(jnp.asarray(verts[rv[:, 0]][:, None]),
+                                jnp.asarray(verts[rv[:, 1]][:, None]),
+                                jnp.asarray(verts[np.maximum(opp_k, 0)]), jnp.asarray(light)))
+        contrib = contrib * (s_t[np.maximum(tri_k, 0)] != 0)
+    return np.where(slot, contrib, 0).sum(axis=1).astype(np.int32)
+
+
 def _permutation_parity(faces: np.ndarray) -> np.ndarray:
     """int [m]: +1 if sorting each row of distinct ints [m, 3] is an even permutation."""
     f = faces.astype(np.int64)
@@ -192,20 +221,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                 facing = orient[scene.object_id] * _permutation_parity(faces) * s_t > 0
                 active &= ~closed[scene.object_id] | facing
             s_t = np.where(active, s_t, 0).astype(np.int32)
-            tri_k, opp_k = adj.triangle, adj.opposite
-            slot = tri_k >= 0
-            rv = adj.record_vertices
-            if multiplicity == "sorted":
-                a_, b_ = rv[:, :1], rv[:, 1:]
-                parity = np.where((a_ < opp_k) & (opp_k < b_), -1, 1)
-                contrib = parity * s_t[np.maximum(tri_k, 0)]
-            else:
-                fn = slot_signs_unsorted if multiplicity == "unsorted" else slot_signs_planes
-                contrib = np.asarray(fn(jnp.asarray(verts[rv[:, 0]][:, None]),
-                                        jnp.asarray(verts[rv[:, 1]][:, None]),
-                                        jnp.asarray(verts[np.maximum(opp_k, 0)]), light_j))
-                contrib = contrib * (s_t[np.maximum(tri_k, 0)] != 0)
-            m_rec = np.where(slot, contrib, 0).sum(axis=1).astype(np.int32)
+            m_rec = record_multiplicity(adj, s_t, verts, light_j, multiplicity)
             sil = np.flatnonzero(m_rec)
         vt = timer.run("setup", vertex_terms, jnp.asarray(verts), light_j)
         ev = adj.edge_vertices
