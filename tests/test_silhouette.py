@@ -10,8 +10,7 @@ import pytest
 import shadowlab as sl
 from shadowlab.geometry.clip_visibility import side_visible
 from shadowlab.methods.silhouette import record_multiplicity, triangle_signs
-from shadowlab.scene import Scene
-from shadowlab.scene.procedural import default_view
+from shadowlab.scene.procedural import default_view, grazing_sheet
 
 RES = (32, 32)
 
@@ -74,27 +73,32 @@ def test_multiplicity_equals_a_numpy_loop():
     assert np.abs(m).max() >= 2                      # non-manifold edges are exercised
 
 
-def _grazing_sheet(n=40, jitter=2e-7, seed=0):
-    """A tessellated sheet y ~ 1 whose vertices are a few ulps off the plane."""
-    rng = np.random.default_rng(seed + 7)
-    x, z = np.meshgrid(np.linspace(0, 3, n), np.linspace(0, 3, n))
-    v = np.stack([x, 1.0 + rng.uniform(-1, 1, x.shape) * jitter, z], -1).reshape(-1, 3)
-    i = np.arange(n * n).reshape(n, n)
-    a, b, c, d = i[:-1, :-1], i[:-1, 1:], i[1:, :-1], i[1:, 1:]
-    f = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
-                        np.stack([a, d, c], -1).reshape(-1, 3)])
-    return Scene(v, f, np.zeros(len(f)), ("sheet",), "grazing_sheet")
-
-
 def test_only_the_sorted_multiplicity_is_watertight_under_a_grazing_light():
     """Light in the sheet's plane, float32: the per-slot variants disagree between a
     triangle's edges, so the silhouette is not closed (a leak); the sorted rule is."""
-    scene = _grazing_sheet()
+    scene = grazing_sheet()
     lh = np.array([-5.0, 1.0, 1.5, 1.0])
     counts = {mode: _imbalanced_vertices(*_multiplicity(scene, lh, mode, np.float32))
               for mode in ("sorted", "unsorted", "planes")}
     assert counts["sorted"] == 0
     assert counts["unsorted"] > 0 and counts["planes"] > 0, counts
+
+
+def test_the_leaks_show_in_the_image():
+    """The same sheet seen from the world origin (eye-relative = world coordinates):
+    the sorted rule matches the reference, the per-slot rules leak on the wall."""
+    scene = grazing_sheet()
+    cam = sl.Camera(eye=(0.0, 0.0, 0.0), target=(6.0, 1.0, 1.5), up=(0, 1, 0),
+                    fov_y_deg=70.0, near=0.05, far=100.0, resolution=(64, 64))
+    gbuf = sl.render_gbuffer(scene, cam)
+    light = sl.PointLight(position=(-2.0, 1.0, 0.3))
+    truth = sl.reference_shadows(scene, gbuf, light)
+    wrong = {}
+    for mode in ("sorted", "planes"):
+        res = sl.compute_shadows(scene, gbuf, light, method="silhouette", multiplicity=mode,
+                                 degenerate="paper", chunk=4)
+        wrong[mode] = int(((res.lit != truth) & gbuf.valid).sum())
+    assert wrong["sorted"] == 0 and wrong["planes"] > 0, wrong
 
 
 VARIANTS = [

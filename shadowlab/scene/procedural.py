@@ -927,3 +927,23 @@ def _atrium(name: str, bays: int, segments: int, banners: int, seed: int) -> Sce
                        prim.triangle_soup(np.asarray(corners)),
                        np.repeat(np.arange(banners), 2))
     return parts.scene(name)
+
+
+def grazing_sheet(n: int = 40, jitter: float = 2e-7, seed: int = 0) -> Scene:
+    """A robustness case, not a registered generator: a sheet of 2 (n-1)^2 triangles over
+    x, z in [0, 3] at y = 1 whose vertices are ``jitter`` (a few float32 ulps) off the
+    plane, and a wall x = 6 behind it. A light in the sheet's plane makes every
+    triangle's side of the light a rounding decision (Pečiva et al. 2013's case for the
+    deterministic multiplicity)."""
+    rng = np.random.default_rng(seed + 7)
+    x, z = np.meshgrid(np.linspace(0, 3, n), np.linspace(0, 3, n))
+    v = np.stack([x, 1.0 + rng.uniform(-1, 1, x.shape) * jitter, z], -1).reshape(-1, 3)
+    i = np.arange(n * n).reshape(n, n)
+    a, b, c, d = i[:-1, :-1], i[:-1, 1:], i[1:, :-1], i[1:, 1:]
+    f = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
+                        np.stack([a, d, c], -1).reshape(-1, 3)])
+    parts = _Parts()
+    parts.add("sheet", prim._mesh(v, f))
+    parts.add("wall", prim._mesh([[6, -4, -4], [6, 6, -4], [6, 6, 7], [6, -4, 7]],
+                                 [[0, 1, 2], [0, 2, 3]]))
+    return parts.scene("grazing_sheet")
