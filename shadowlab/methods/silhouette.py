@@ -250,7 +250,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             l_hat, dist = hard_light(light).to_light(p)
             cut = eps / np.maximum(np.einsum("ij,ij->i", samples.normal, l_hat), 1e-6)
             beyond_light = cut >= dist if point else np.zeros(samples.count, bool)
-            at_q = bias == "receiver"
+            at_q = bias in ("receiver", "receiver_visible")
             x = p + cut[:, None] * l_hat if at_q else p
             q_rel = jnp.asarray(samples.padded(x - eye, dtype))
         zero = opaque_zero(light_j, jnp.int32)
@@ -266,7 +266,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             passes.append((("eye_ray" if front_cap == "infinity" else "behind"),
                            point and lh[3] > 0, 1, True))
             cap_triangles = int((s_t != 0).sum()) * (2 if point else 1)
-        if at_q and (not zfail or front_cap == "infinity"):
+        if bias == "receiver" and (not zfail or front_cap == "infinity"):
             passes.append(("front", False, -1, False))
         if passes:
             with timer.stage("caps"):
@@ -353,9 +353,11 @@ register(
                              "edge-on cast nothing (as brute_force); 'paper': only an "
                              "exactly coplanar light (sign 0) culls",
                              allowed=("cull", "paper")),
-        "bias": Option("receiver", "'receiver': the reference's cut (exact); 'none': the "
-                       "count at the sample itself (a GPU's depth test)",
-                       allowed=("receiver", "none")),
+        "bias": Option("receiver", "'receiver': the count at the reference's cut point "
+                       "(exact); 'receiver_visible': the same without the caps between the "
+                       "eye and that point (exact only where it is visible; a GPU's cost); "
+                       "'none': the count at the sample itself (a GPU's depth test)",
+                       allowed=("receiver", "receiver_visible", "none")),
         "cull_sides": Option("off", "visibility test of the sides: 'off', 'paper' "
                              "(Algorithms 3-6) or 'exact' (view pyramid, corrected)",
                              allowed=CULL_MODES),
