@@ -168,13 +168,18 @@ def test_exact_culling_keeps_the_result_and_the_paper_test_culls_visible_sides()
         pi3 = -(lp[i] @ np.cross(a[i], b[i]))
         crossed[i] = np.any(((sa >= 0) != (sb >= 0)) & ((pi1 >= 0) == (rho >= 0))
                             & ((rho >= 0) == (pi3 >= 0)))
-    vis = {mode: np.array([side_visible(a[i:i + 1], b[i:i + 1], np.append(lp[i], 1.0), cam,
-                                        mode)[0] for i in range(n)])
-           for mode in ("paper", "exact")}
+    vis = {(mode, diag): np.array([side_visible(a[i:i + 1], b[i:i + 1], np.append(lp[i], 1.0),
+                                                cam, mode, diag)[0] for i in range(n)])
+           for mode, diag in (("paper", "paper"), ("paper", "plane"), ("exact", "paper"))}
     assert crossed.sum() > 100
-    assert not np.any(crossed & ~vis["exact"])
-    assert np.any(crossed & ~vis["paper"])
-    assert np.any(~vis["exact"])                    # and it does cull something
+    assert not np.any(crossed & ~vis["exact", "paper"])
+    assert np.any(~vis["exact", "paper"])                    # and it does cull something
+    # the paper's diagonal (the normal transformed as a vector) culls crossed sides that
+    # the plane's own normal keeps; what the corrected diagonal still culls is the
+    # near/far-plane defect
+    wrong_diag = np.sum(crossed & ~vis["paper", "paper"])
+    right_diag = np.sum(crossed & ~vis["paper", "plane"])
+    assert wrong_diag > right_diag > 0
 
 
 def test_culling_on_a_scene_changes_nothing():

@@ -72,6 +72,19 @@ def diagonal_id(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, vp: np.ndarra
     return u[:, 0] + 2 * u[:, 1] - 1
 
 
+def diagonal_id_plane(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, vp: np.ndarray
+                      ) -> np.ndarray:
+    """Algorithm 4 with the corrected normal: the side plane pi = (n, -n.A) mapped to clip
+    space as ``pi VP^-1`` (a plane transforms with the inverse transpose), then the same
+    sign-to-diagonal rule. int [N] in {-1, 0, 1, 2}."""
+    n = np.cross(b - a, light_h[:3] - light_h[3] * a)
+    plane = np.hstack([n, -np.einsum("ij,ij->i", n, a)[:, None]])
+    s = plane @ np.linalg.inv(vp)
+    u = np.floor((1 + np.sign(s[:, :3])) / math.sqrt(2)).astype(np.int64)
+    u = np.where(u[:, 2:3] == 1, 1 - u, u)
+    return u[:, 0] + 2 * u[:, 1] - 1
+
+
 def full_visible(a: np.ndarray, f: np.ndarray, g: np.ndarray, diag: np.ndarray) -> np.ndarray:
     """Algorithm 5: bool [N], the parallelogram a + t f + l g (clip space [N, 4]) meets
     the diagonal ``diag`` of the clip cube inside the cube."""
@@ -109,10 +122,12 @@ def corner_rays_cross(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, eye: np
     return out
 
 
-def side_visible(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, camera, mode: str
-                 ) -> np.ndarray:
+def side_visible(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, camera, mode: str,
+                 diagonal: str = "paper") -> np.ndarray:
     """bool [N]: keep the side quad of edge a, b [N, 3] (world units) under ``mode``
-    ("paper" or "exact", see the module docstring; "off" keeps all)."""
+    ("paper" or "exact", see the module docstring; "off" keeps all). ``diagonal``
+    ("paper" or "plane", :func:`diagonal_id_plane`) picks Algorithm 4's rule for the
+    paper's test, to tell its two defects apart."""
     if mode == "off":
         return np.ones(len(a), bool)
     if mode not in CULL_MODES:
@@ -124,7 +139,8 @@ def side_visible(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, camera, mode
     for p, q in ((ac, bc), (ac, cc), (bc, dc), (cc, dc)):
         vis |= edge_visible(p, q, axes, margin)
     if mode == "paper":
-        vis |= full_visible(ac, bc - ac, cc - ac, diagonal_id(a, b, light_h, vp))
+        pick = diagonal_id if diagonal == "paper" else diagonal_id_plane
+        vis |= full_visible(ac, bc - ac, cc - ac, pick(a, b, light_h, vp))
     else:
         vis |= corner_rays_cross(a, b, light_h, np.asarray(camera.eye, float),
                                  screen_corner_rays(camera))
