@@ -10,7 +10,7 @@ from scenes import sphere_over_plane
 
 SMALL = {"sphere_grid": {"n": 3, "triangles_per_sphere": 128}, "gate": {"trees": 5},
          "fuzzy": {"triangles": 2000}, "terrain": {"size": 40}, "blobs": {"grid": 20},
-         "soup": {"count": 40}}
+         "soup": {"count": 40}, "atrium": {"bays": 3, "segments": 8, "banners": 4}}
 
 
 @pytest.mark.parametrize("name", sorted(GENERATORS))

@@ -16,11 +16,11 @@ from shadowlab.scene import (GENERATORS, Camera, PointLight, Scene, SceneError, 
 from shadowlab.scene import primitives as prim
 from shadowlab.scene.procedural import Generator, fit_clip_range
 
-NAMES = ["sphere_grid", "gate", "fuzzy", "terrain", "blobs", "soup"]
+NAMES = ["sphere_grid", "gate", "fuzzy", "terrain", "blobs", "soup", "atrium"]
 RANDOMISED = [n for n in NAMES if n != "sphere_grid"]   # sphere_grid is regular
 # One integer size parameter per generator (for type/range errors and scaling).
 SIZE_PARAM = {"sphere_grid": "n", "gate": "trees", "fuzzy": "triangles",
-              "terrain": "size", "blobs": "grid", "soup": "count"}
+              "terrain": "size", "blobs": "grid", "soup": "count", "atrium": "bays"}
 
 
 def _same(a: Scene, b: Scene) -> bool:

@@ -71,6 +71,11 @@ class ExperimentConfig(BaseModel):
     expand_level: number(int, ge=0, optional=True) = None
     workers: _ints(1) = None
     front_face_culling: Annotated[Optional[StrictBool], _wanted("true or false")] = None
+    # silhouette sweeps (experiments/silhouette_work.py)
+    triangles_per_sphere_sweep: _ints(6) = None
+    objects_sweep: _ints(1) = None
+    per_triangle_max: number(int, ge=0, optional=True) = None
+    shadow_map_resolutions: _ints(1) = None
     # references and measurements
     truth_rays: number(int, ge=1, optional=True) = None
     embree_rays: _ints(1) = None

@@ -54,6 +54,19 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("stencil_updates_per_pixel", "map", "stencil updates at each pixel"),
     Counter("eye_in_volumes", "int", "shadow volumes containing the eye (zpass initialises "
             "the stencil with this count)"),
+    # silhouette shadow volumes (silhouette; docs/silhouette.md)
+    Counter("edges", "int", "edge records of the adjacency (an edge with more opposite vertices "
+            "than a record holds fills several)"),
+    Counter("open_edges", "int", "edges with one adjacent triangle"),
+    Counter("nonmanifold_edges", "int", "edges with more than two adjacent triangles, or two "
+            "with the same direction"),
+    Counter("silhouette_edges", "int", "edge records with multiplicity m != 0"),
+    Counter("side_quads", "int", "side quads extruded: the sum of |m| over edge records"),
+    Counter("culled_sides", "int", "silhouette edge records whose side the visibility test "
+            "culled (not drawn)"),
+    Counter("cap_triangles", "int", "cap triangles drawn (front and back caps; 0 for zpass)"),
+    Counter("negative_stencil", "int", "samples whose final stencil count is below zero (a "
+            "leak; 0 in an exact configuration)"),
     # TOP-tree methods (psv, d_psv, d_stackless, d_hybrid; docs/psv.md)
     Counter("visited_nodes", "int", "TOP-tree node visits summed over samples (a visit reads "
             "one node; a depth-test skip and a stackless second visit count as visits)"),

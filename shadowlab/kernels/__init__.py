@@ -120,5 +120,13 @@ def sun_disk_visibility(*args, **kw):
     return sun_disk.visibility(*args, **kw)
 
 
+def silhouette_multiplicity(scene, light_h, eye, **kw):
+    """Per-edge multiplicity of silhouette shadow volumes; see
+    ``kernels.silhouette.multiplicity``."""
+    _require()
+    from . import silhouette
+    return silhouette.multiplicity(scene, light_h, eye, **kw)
+
+
 __all__ = ["METHODS", "PSV_METHODS", "available", "compute_shadows", "methods", "psv_build",
-           "psv_query", "sun_disk_visibility"]
+           "psv_query", "silhouette_multiplicity", "sun_disk_visibility"]

@@ -189,7 +189,7 @@ def run_kernel(scene, gbuf, light, method: str, **options):
 
 # Modules under shadowlab.methods whose import registers their methods.
 BUILTIN_MODULES: tuple[str, ...] = ("brute_force", "psv", "clustered_ptsv", "ptsv", "stencil",
-                                    "soft_tiled", "shadow_map", "izb")
+                                    "soft_tiled", "shadow_map", "izb", "silhouette")
 
 
 def _load_builtin():

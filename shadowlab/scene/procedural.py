@@ -18,6 +18,8 @@ terrain        a fractal height field under a low sun (soft shadows)         18,
 blobs          marching-cubes surfaces of a sum of Gaussians over a ground   5,092
 soup           degenerate, coplanar, interpenetrating, non-manifold, open    2,002
                and duplicated triangles (robustness)
+atrium         columns, open arches, an open gallery and banners (the        1,686
+               architectural stand-in for Pečiva 2013's Sponza)
 =============  ==========================================================  ==========
 
 Use :func:`make` (validates parameters) and :func:`default_view`; :func:`generators`
@@ -874,3 +876,110 @@ def _soup(name: str, count: int, seed: int) -> Scene:
     faces = np.stack([base, dup], 1).reshape(-1, 3)
     parts.add("duplicated", (verts, faces.astype(np.int32)))
     return parts.scene(name)
+
+
+# --------------------------------------------------------------------------- atrium
+
+def _arch_band(x0: float, x1: float, z_c: float, radius: float, thickness: float,
+               y0: float, segments: int) -> prim.Mesh:
+    """An open semicircular arch in the plane x = x0 .. x1 spanning z_c +- radius at
+    springing height y0: the curved underside (intrados) and the front face (a
+    half annulus of ``thickness``), without back face or sides, so its edges are open.
+    Triangles: ``4 segments``."""
+    phi = np.pi * np.arange(segments + 1) / segments
+    ci, si = np.cos(phi), np.sin(phi)
+    inner = np.stack([np.zeros_like(phi), y0 + radius * si, z_c + radius * ci], 1)
+    outer = np.stack([np.zeros_like(phi), y0 + (radius + thickness) * si,
+                      z_c + (radius + thickness) * ci], 1)
+    a, b = inner + [x0, 0, 0], inner + [x1, 0, 0]
+    c = outer + [x0, 0, 0]
+    n = segments + 1
+    verts = np.concatenate([a, b, c])
+    s = np.arange(segments)
+    faces = np.concatenate([
+        np.stack([s, s + 1, n + s + 1], 1), np.stack([s, n + s + 1, n + s], 1),   # intrados
+        np.stack([s, 2 * n + s, 2 * n + s + 1], 1), np.stack([s, 2 * n + s + 1, s + 1], 1)])
+    return prim._mesh(verts, faces)
+
+
+def _atrium_view(scene: Scene, params: dict) -> View:
+    bays = params["bays"]
+    length = ATRIUM_BAY * bays
+    light = PointLight((9.0, 14.0, -0.3 * length))
+    return framed_view(scene, (-1.2, 1.7, 3.0), (0.8, 2.2, -length), light, fov_y_deg=60.0)
+
+
+ATRIUM_BAY = 3.0        # column spacing along the nave (world units)
+
+
+@_register(
+    "atrium",
+    "an architectural interior (the Sponza stand-in for Pečiva 2013 Tables 5-6): two "
+    "colonnades of closed columns carrying open arches, an open gallery floor with "
+    "a light well, and hanging single-sided banners",
+    {"bays": Param(6, int, 1, 10_000, "arches per colonnade"),
+     "segments": Param(16, int, 3, 100_000, "segments of a column's circle and of an arch"),
+     "banners": Param(8, int, 0, 100_000, "hanging banners (two-triangle quads)"),
+     "seed": Param(0, int, 0, None, "random seed (banner placement and sway)")},
+    _atrium_view)
+def _atrium(name: str, bays: int, segments: int, banners: int, seed: int) -> Scene:
+    """A nave along -z between colonnades at x = -3 and x = 3.
+
+    Objects: ground; per colonnade ``bays + 1`` columns (closed cylinders of radius 0.3,
+    height 4) and ``bays`` open arches (:func:`_arch_band`) springing at y = 4; a gallery
+    floor at y = 5.6 over each aisle with a light well (open quads); ``banners`` open
+    quads hanging in the nave. Triangles:
+    ``2 + 2 (bays + 1) 4 segments + 2 bays 4 segments + 4 + 2 banners``.
+    """
+    rng = np.random.default_rng(seed)
+    parts = _Parts()
+    length = ATRIUM_BAY * bays
+    _ground(parts, (-12.0, 12.0), (-length - 6.0, 6.0))
+    cv, cf = prim.cylinder(segments)
+    zs = -ATRIUM_BAY * np.arange(bays + 1)
+    for side, x in (("left", -3.0), ("right", 3.0)):
+        cols = prim.instances(cv, cf, np.stack([np.full(bays + 1, x), np.zeros(bays + 1), zs], 1),
+                              np.tile([0.3, 4.0, 0.3], (bays + 1, 1)))
+        parts.add_many([f"{side}.column{i}" for i in range(bays + 1)], cols,
+                       np.repeat(np.arange(bays + 1), len(cf)))
+        r = 0.5 * ATRIUM_BAY - 0.3
+        arches = prim.merge([_arch_band(x - 0.3, x + 0.3, z - 0.5 * ATRIUM_BAY, r, 0.35, 4.0,
+                                        segments) for z in zs[:-1]])
+        parts.add_many([f"{side}.arch{i}" for i in range(bays)], arches,
+                       np.repeat(np.arange(bays), 4 * segments))
+        xo = (x - 4.0, x + 0.3) if x < 0 else (x - 0.3, x + 4.0)
+        parts.add(f"{side}.gallery", prim.quad_grid(xo, (-length, 0.0), 5.6))
+    if banners:
+        bx = rng.uniform(-2.2, 2.2, banners)
+        bz = rng.uniform(-length, 0.0, banners)
+        sway = rng.uniform(-0.4, 0.4, banners)
+        top, bottom = 3.6, 1.6
+        corners = []
+        for x, z, s in zip(bx, bz, sway):
+            q = np.array([[x - 0.4, top, z], [x + 0.4, top, z], [x + 0.4 + s, bottom, z + s],
+                          [x - 0.4 + s, bottom, z + s]])
+            corners += [q[[0, 1, 2]], q[[0, 2, 3]]]
+        parts.add_many([f"banner{i}" for i in range(banners)],
+                       prim.triangle_soup(np.asarray(corners)),
+                       np.repeat(np.arange(banners), 2))
+    return parts.scene(name)
+
+
+def grazing_sheet(n: int = 40, jitter: float = 2e-7, seed: int = 0) -> Scene:
+    """A robustness case, not a registered generator: a sheet of 2 (n-1)^2 triangles over
+    x, z in [0, 3] at y = 1 whose vertices are ``jitter`` (a few float32 ulps) off the
+    plane, and a wall x = 6 behind it. A light in the sheet's plane makes every
+    triangle's side of the light a rounding decision (Pečiva et al. 2013's case for the
+    deterministic multiplicity)."""
+    rng = np.random.default_rng(seed + 7)
+    x, z = np.meshgrid(np.linspace(0, 3, n), np.linspace(0, 3, n))
+    v = np.stack([x, 1.0 + rng.uniform(-1, 1, x.shape) * jitter, z], -1).reshape(-1, 3)
+    i = np.arange(n * n).reshape(n, n)
+    a, b, c, d = i[:-1, :-1], i[:-1, 1:], i[1:, :-1], i[1:, 1:]
+    f = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
+                        np.stack([a, d, c], -1).reshape(-1, 3)])
+    parts = _Parts()
+    parts.add("sheet", prim._mesh(v, f))
+    parts.add("wall", prim._mesh([[6, -4, -4], [6, 6, -4], [6, 6, 7], [6, -4, 7]],
+                                 [[0, 1, 2], [0, 2, 3]]))
+    return parts.scene("grazing_sheet")

@@ -1,0 +1,189 @@
+"""Exact software stencil of silhouette shadow volumes: integer counts per view sample.
+
+A GPU rasterizes each silhouette side quad |m| times and each cap once, and the
+stencil of a pixel counts the signed crossings of the view ray with those polygons.
+In software the same count is a sum of exact sign predicates per (sample, side) and
+(sample, cap), evaluated in eye-relative coordinates (the eye is the origin: every
+vertex ``X' = X - E``, the light ``L' = l - L_w E``, an evaluation point ``q' = q - E``):
+
+- side of edge AB (A < B): the segment E -> q crosses it iff the line AB pierces the
+  triangle (L, E, q), i.e. A and B lie on opposite sides of the plane (E, q, L)
+  (``sigma_X = q' . (L' x X')``) and the three edge tests ``pi1 = q' . (A' x B')``,
+  ``pi2 = D - q' . h`` and ``pi3 = -D`` (``D = L' . (A' x B')``,
+  ``h = B' x L' + L' x A' + L_w A' x B'``) agree; the ray q -> infinity (ZFAIL) crosses
+  it iff AB pierces (q, q + infinity d, L): tests ``pi1``, ``-pi2`` and
+  ``rho2 = q' . ((L' - L_w A') x (B' - A'))``;
+- front cap (a triangle T): the line E-q passes through T iff ``pi1`` of T's three
+  edges, with the parities (+, +, -) of its sorted edges (lo, mid), (mid, hi),
+  (lo, hi), agree; the crossing is beyond q (true cap) or beyond E (cap at infinity,
+  eq. 6 of Pečiva 2013) by the sign of ``n_T . lo'`` against ``n_T . q'``;
+- back cap (point light only): the ray from L along d = q' passes through T
+  (``rho2`` of T's edges with the same parities) on T's far side from the light.
+
+Every value shared by two primitives is computed once per (sample, edge) from one
+per-edge table row (vertex terms ``L' x X'`` once per welded vertex), with opaque
+products and left-to-right sums (``shadowlab.core.numerics``), and every sign test is
+``sgn+`` (``>= 0`` is positive): sides and caps stay watertight, so the counts are
+exact integers away from rounding at true shadow boundaries.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
+
+#: columns of an edge table row
+EDGE_COLUMNS = 16     # L'xA (3), L'xB (3), A'xB' (3), D (1), h (3), r (3)
+
+
+@jax.jit
+def vertex_terms(vertices, light):
+    """[V, 3]: ``L' x X'`` of every eye-relative vertex ``X'`` [V, 3] (light [4])."""
+    mul = opaque_multiplier(opaque_zero(light))
+    lv = [light[k] for k in range(3)]
+    x = [vertices[:, k] for k in range(3)]
+    return jnp.stack(cross3([jnp.broadcast_to(c, x[0].shape) for c in lv], x, mul), axis=1)
+
+
+@jax.jit
+def edge_table(a, b, la, lb, light):
+    """Per edge (A < B, eye-relative [E, 3]) the predicate vectors, [E, 16].
+
+    ``la``/``lb`` [E, 3] are rows of :func:`vertex_terms` gathered at A and B (so every
+    edge through a vertex sees the same bits). Columns: L'xA', L'xB', A'xB', D, h, r (see
+    the module docstring).
+    """
+    mul = opaque_multiplier(opaque_zero(light))
+    lv = [jnp.broadcast_to(light[k], a[:, 0].shape) for k in range(3)]
+    lw = light[3]
+    av = [a[:, k] for k in range(3)]
+    bv = [b[:, k] for k in range(3)]
+    ab = cross3(av, bv, mul)
+    d = ordered_dot(lv, ab, mul)
+    bl = cross3(bv, lv, mul)
+    la_ = cross3(lv, av, mul)
+    h = [(bl[k] + la_[k]) + mul(lw, ab[k]) for k in range(3)]
+    r = cross3([lv[k] - mul(lw, av[k]) for k in range(3)], [bv[k] - av[k] for k in range(3)],
+               mul)
+    cols = [la[:, 0], la[:, 1], la[:, 2], lb[:, 0], lb[:, 1], lb[:, 2], *ab, d, *h, *r]
+    return jnp.stack(cols, axis=1)
+
+
+def _dot(q, row, k, mul):
+    return ordered_dot(q, [row[k], row[k + 1], row[k + 2]], mul)
+
+
+@functools.lru_cache(maxsize=None)
+def side_kernel(chunk: int, zfail: bool):
+    """Jitted ``run(q, table, m, weight, zero) -> (stencil int32 [S], updates int32 [S])``.
+
+    q [S, 3] eye-relative evaluation points; table [R, 16] edge rows of the silhouette
+    records (R % chunk == 0); m int32 [R] multiplicities (0 = no side); weight int32 [R]
+    the stencil updates a crossing costs (|m|, or 0 for padding). ZPASS counts crossings
+    of the segment E -> q (+m sgn+(sigma_B) each), ZFAIL of the ray q -> infinity
+    (-m sgn+(sigma_B) each, the volume is left there).
+    """
+    @jax.jit
+    def run(q, table, m, weight, zero):
+        mul = opaque_multiplier(zero)
+        qv = [q[:, 0], q[:, 1], q[:, 2]]
+
+        def body(i, carry):
+            stencil, updates = carry
+            blk = jax.lax.dynamic_slice_in_dim(table, i * chunk, chunk)
+            mb = jax.lax.dynamic_slice_in_dim(m, i * chunk, chunk)
+            wb = jax.lax.dynamic_slice_in_dim(weight, i * chunk, chunk)
+            for j in range(chunk):
+                row = blk[j]
+                sa = _dot(qv, row, 0, mul) >= 0
+                sb = _dot(qv, row, 3, mul)
+                cross = sa != (sb >= 0)
+                p1 = _dot(qv, row, 6, mul) >= 0
+                qh = _dot(qv, row, 10, mul)
+                if zfail:
+                    t2 = (qh - row[9]) >= 0
+                    t3 = _dot(qv, row, 13, mul) >= 0
+                else:
+                    t2 = (row[9] - qh) >= 0
+                    t3 = jnp.broadcast_to(-row[9] >= 0, p1.shape)
+                hit = cross & (p1 == t2) & (t2 == t3)
+                sgn = jnp.where(sb >= 0, 1, -1).astype(jnp.int32) * (-1 if zfail else 1)
+                stencil = stencil + jnp.where(hit, mb[j] * sgn, 0)
+                updates = updates + jnp.where(hit, wb[j], 0)
+            return stencil, updates
+
+        zeros = jnp.zeros(q.shape[0], jnp.int32)
+        return jax.lax.fori_loop(0, table.shape[0] // chunk, body, (zeros, zeros))
+    return run
+
+
+SPANS = ("behind", "eye_ray", "front")
+
+
+@functools.lru_cache(maxsize=None)
+def cap_kernel(chunk: int, span: str, back_caps: bool):
+    """Jitted ``run(q, edges, tri, sign, zero) -> (stencil int32 [S], updates int32 [S])``.
+
+    Cap crossings of each sample's view ray, counted as ZFAIL does (+1 where the ray
+    leaves a volume, -1 where it enters). q [S, 3] eye-relative points (the ray is
+    ``lambda q'``, the point at lambda = 1); edges [T, 3, 16]: the edge-table rows of each
+    triangle's sorted edges (lo, mid), (mid, hi), (lo, hi); tri [T, 4]: n_T = (mid - lo)
+    x (hi - lo) and n_T . lo'; sign int32 [T]: s_T (0 = no volume, also for padding).
+
+    ``span`` selects the front caps counted: "behind" (lambda > 1: true caps behind the
+    point), "eye_ray" (lambda > 0: caps at infinity, eq. 6, drawn wherever the eye ray
+    meets the triangle) or "front" (0 < lambda < 1: caps between the eye and the point,
+    which hide it). A front cap crossed adds ``s_T sgn(n_T . q')``; a back cap (point
+    light, ``back_caps``) crossed adds +1.
+    """
+    if span not in SPANS:
+        raise ValueError(f"span must be one of {SPANS}, got {span!r}")
+
+    @jax.jit
+    def run(q, edges, tri, sign, zero):
+        mul = opaque_multiplier(zero)
+        qv = [q[:, 0], q[:, 1], q[:, 2]]
+
+        def body(i, carry):
+            stencil, updates = carry
+            eb = jax.lax.dynamic_slice_in_dim(edges, i * chunk, chunk)
+            tb = jax.lax.dynamic_slice_in_dim(tri, i * chunk, chunk)
+            sb = jax.lax.dynamic_slice_in_dim(sign, i * chunk, chunk)
+            for j in range(chunk):
+                e = eb[j]
+                s = sb[j]
+                f1 = _dot(qv, e[0], 6, mul) >= 0
+                f2 = _dot(qv, e[1], 6, mul) >= 0
+                f3 = _dot(qv, e[2], 6, mul) <= 0
+                through = (f1 == f2) & (f2 == f3)
+                nq = _dot(qv, tb[j], 0, mul)
+                nlo = tb[j][3]
+                same = ((nlo > 0) & (nq > 0)) | ((nlo < 0) & (nq < 0))   # lambda > 0
+                rest = nlo - nq                                          # lambda > 1 ...
+                far = ((rest > 0) & (nq > 0)) | ((rest < 0) & (nq < 0))
+                if span == "behind":
+                    hit = far
+                elif span == "eye_ray":
+                    hit = same
+                else:
+                    hit = same & ~far & (rest != 0)
+                front = through & hit & (s != 0)
+                sq = jnp.where(nq > 0, 1, -1).astype(jnp.int32)
+                stencil = stencil + jnp.where(front, s * sq, 0)
+                updates = updates + front.astype(jnp.int32)
+                if back_caps:
+                    b1 = _dot(qv, e[0], 13, mul) >= 0
+                    b2 = _dot(qv, e[1], 13, mul) >= 0
+                    b3 = _dot(qv, e[2], 13, mul) <= 0
+                    back = (b1 == b2) & (b2 == b3) & (s * sq < 0) & (nq != 0)
+                    stencil = stencil + back.astype(jnp.int32)
+                    updates = updates + back.astype(jnp.int32)
+            return stencil, updates
+
+        zeros = jnp.zeros(q.shape[0], jnp.int32)
+        return jax.lax.fori_loop(0, edges.shape[0] // chunk, body, (zeros, zeros))
+    return run
