@@ -192,3 +192,12 @@ def test_a_worker_killed_mid_sweep_loses_nothing(tmp_path, cluster):
         sorted(f"{t.key}.json" for t in sweep.tasks)
     assert np.isfinite(table["warm_seconds"]).all()
     assert pids[victim] not in client.run(os.getpid).values()   # the worker was replaced
+
+
+def test_the_shipped_example_is_a_valid_sweep():
+    from pathlib import Path
+
+    sweep = load_sweep(Path(__file__).resolve().parent.parent / "configs" / "sweeps" / "example.toml")
+    assert len(sweep.points) == 4 and len(sweep.tasks) == 4
+    assert sweep.configs[3].scene.source == "soup"
+    assert sweep.configs[3].camera.resolution == (96, 96)
