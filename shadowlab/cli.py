@@ -61,6 +61,10 @@ def _parser() -> argparse.ArgumentParser:
     figures.add_argument("--only", action="append", default=[], metavar="NAME",
                          help="only this experiment (repeatable)")
     figures.add_argument("--root", default=".", help="repository root (default: .)")
+    figures.add_argument("--workers", type=int, default=None,
+                         help="run the experiments on a local Dask cluster of N processes")
+    figures.add_argument("--scheduler", metavar="ADDRESS",
+                         help="run the experiments on the Dask cluster at ADDRESS")
     figures.add_argument("--quiet", action="store_true")
     return ap
 
@@ -152,8 +156,16 @@ def _cmd_bench(args) -> int:
 def _cmd_figures(args) -> int:
     from .harness.figures import regenerate
 
+    from .config import ConfigError
+
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"figures --workers must be >= 1, got {args.workers}")
+    if args.workers is not None and args.scheduler:
+        raise ConfigError("figures: give --workers (a local cluster) or --scheduler (an "
+                          "existing one), not both")
     failures = regenerate(Path(args.root), size=args.size, only=args.only,
-                          progress=not args.quiet)
+                          progress=not args.quiet, workers=args.workers,
+                          scheduler=args.scheduler)
     return 1 if failures else 0
 
 

@@ -201,3 +201,36 @@ def test_the_shipped_example_is_a_valid_sweep():
     assert len(sweep.points) == 4 and len(sweep.tasks) == 4
     assert sweep.configs[3].scene.source == "soup"
     assert sweep.configs[3].camera.resolution == (96, 96)
+
+
+_TOY_EXPERIMENT = '''
+import os
+import numpy as np
+
+def run(cfg):
+    return {"x": np.arange(cfg["frames"]), "pid": np.array(os.getpid())}
+
+def plot(arrays):
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    ax.plot(arrays["x"])
+    return fig
+'''
+
+
+def test_figures_run_on_the_cluster(tmp_path, cluster):
+    from shadowlab.harness.figures import regenerate
+
+    c, client = cluster
+    (tmp_path / "experiments").mkdir()
+    (tmp_path / "configs" / "experiments").mkdir(parents=True)
+    for name, n in (("one", 3), ("two", 5)):
+        (tmp_path / "experiments" / f"{name}.py").write_text(_TOY_EXPERIMENT)
+        (tmp_path / "configs" / "experiments" / f"{name}.full.toml").write_text(f"frames = {n}\n")
+    assert regenerate(tmp_path, size="full", client=client, progress=False) == []
+    workers = set(client.run(os.getpid).values())
+    for name, n in (("one", 3), ("two", 5)):
+        arrays = np.load(tmp_path / "figures" / f"{name}.npz")
+        assert list(arrays["x"]) == list(range(n))
+        assert int(arrays["pid"]) in workers            # computed on a worker
+        assert (tmp_path / "figures" / f"{name}.png").stat().st_size > 0

@@ -392,7 +392,10 @@ class SweepOutput:
     failures: dict
 
 
-def _client(workers: int | None, scheduler: str | None):
+def dask_client(workers: int | None, scheduler: str | None):
+    """(Client, LocalCluster or None): a client of the cluster at ``scheduler``, or of a
+    new LocalCluster of ``workers`` single-threaded worker processes (default: the CPU
+    count), without a dashboard."""
     import logging
 
     from distributed import Client, LocalCluster
@@ -443,7 +446,7 @@ def run_sweep(sweep: Sweep, out_dir: str | os.PathLike, *, workers: int | None =
         own = client is None
         cluster = None
         if own:
-            client, cluster = _client(workers, scheduler)
+            client, cluster = dask_client(workers, scheduler)
         futures = []
         try:
             from distributed import as_completed
@@ -478,5 +481,5 @@ def run_sweep(sweep: Sweep, out_dir: str | os.PathLike, *, workers: int | None =
     return result
 
 
-__all__ = ["FIXED_COLUMNS", "Sweep", "SweepError", "SweepOutput", "Task", "gather",
-           "load_sweep", "read_task", "rows_of", "run_sweep", "run_task", "task_key"]
+__all__ = ["FIXED_COLUMNS", "Sweep", "SweepError", "SweepOutput", "Task", "dask_client",
+           "gather", "load_sweep", "read_task", "rows_of", "run_sweep", "run_task", "task_key"]
