@@ -234,3 +234,31 @@ def test_figures_run_on_the_cluster(tmp_path, cluster):
         assert list(arrays["x"]) == list(range(n))
         assert int(arrays["pid"]) in workers            # computed on a worker
         assert (tmp_path / "figures" / f"{name}.png").stat().st_size > 0
+
+
+def test_ctrl_c_leaves_a_consistent_folder_and_a_rerun_resumes(tmp_path, cluster, monkeypatch):
+    import distributed
+
+    c, client = cluster
+    sweep = load_sweep(_write(tmp_path, GRID.format(w=24, h=24) + "[animation]\nframes = 2\n"
+                              "light_keys = [[1.0, 9.0, 1.0], [2.0, 9.0, 0.0]]\n"), repeats=1)
+    out = tmp_path / "out"
+    real = distributed.as_completed
+
+    def interrupted(futures):             # Ctrl-C as the first task finishes
+        for future in real(futures):
+            yield future
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(distributed, "as_completed", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(sweep, out, client=client, jax_cache=False, progress=False, log=lambda s: None)
+    monkeypatch.setattr(distributed, "as_completed", real)
+    assert not (out / "results.parquet").exists()
+    files = list((out / "tasks").glob("[!.]*.json"))
+    assert 1 <= len(files) <= 8 and all(read_task(f) is not None for f in files)
+    logs = []
+    res = run_sweep(sweep, out, client=client, jax_cache=False, progress=False, log=logs.append)
+    done = int(logs[0].split(", ")[1].split()[0])
+    assert logs[0].startswith("8 tasks, ") and done >= 1 and res.ran == 8 - done
+    assert len(res.table) == 8 and not res.failures
