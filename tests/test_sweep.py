@@ -262,3 +262,16 @@ def test_ctrl_c_leaves_a_consistent_folder_and_a_rerun_resumes(tmp_path, cluster
     done = int(logs[0].split(", ")[1].split()[0])
     assert logs[0].startswith("8 tasks, ") and done >= 1 and res.ran == 8 - done
     assert len(res.table) == 8 and not res.failures
+
+
+def test_a_soft_method_on_a_point_light_is_refused_before_any_work(tmp_path):
+    base = BASE.format(w=8, h=8).replace('["brute_force"]', '["soft_tiled"]')
+    path = _write(tmp_path, base + '[sweep]\n"light" = [{type = "sphere", position = [0.0, 9.0, '
+                  '0.0], radius = 0.5}, {type = "point", position = [0.0, 9.0, 0.0]}]\n')
+    with pytest.raises(ConfigError, match=r"soft_tiled.*needs a sphere or sun light.*grid "
+                                          r"point 2 of 2: light = \{type = 'point'"):
+        load_sweep(path)
+    # A light the scene's default view cannot complete is found before any work too.
+    path = _write(tmp_path, base + '[sweep]\n"light.type" = ["sphere"]\n', "nr.toml")
+    with pytest.raises(ConfigError, match=r"needs light.radius.*grid point 1 of 1"):
+        load_sweep(path)

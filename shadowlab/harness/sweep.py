@@ -142,7 +142,8 @@ def task_key(config, frame: int, repeats: int, warmup: int) -> str:
 
 
 def load_sweep(path: str | os.PathLike, overrides: Sequence[str] = (), *,
-               repeats: int = 3, warmup: int = 1, check_memory: bool = True) -> Sweep:
+               repeats: int = 3, warmup: int = 1, check_memory: bool = True,
+               check_views: bool = True) -> Sweep:
     """Read a sweep config and validate every grid point before anything runs.
 
     Args:
@@ -150,6 +151,8 @@ def load_sweep(path: str | os.PathLike, overrides: Sequence[str] = (), *,
         overrides: ``--set key=value`` strings applied to every point (they may not set a
             swept key).
         repeats, warmup: the timing protocol of every task (``harness.evaluate``).
+        check_views: build each distinct scene once and resolve every point's views and
+            methods against it (what ``run`` checks only once it has the scene).
 
     Raises:
         ConfigError: no or a malformed ``[sweep]`` table, or a grid point that is not a
@@ -213,26 +216,48 @@ def load_sweep(path: str | os.PathLike, overrides: Sequence[str] = (), *,
         for frame in range(config.animation.frames):
             tasks.append(Task(task_key(config, frame, repeats, warmup), i, frame,
                               dict(zip(keys, combo)), config, repeats, warmup))
-    _check_lights(configs, combos, keys, label)
+    if check_views:
+        _check_views(configs, combos, keys, label)
     return Sweep(label, tuple(keys), values, configs, tasks)
 
 
-def _check_lights(configs, combos, keys, label) -> None:
-    """A soft-shadow method named explicitly on a point or directional light is an
-    error before anything runs, as in ``shadowlab run`` (only points naming a soft
-    method build their scene for this)."""
-    from ..methods import MethodError, get
+def _check_views(configs, combos, keys, label) -> None:
+    """What ``shadowlab run`` finds only once it has the scene, found before anything
+    runs: a scene that cannot be built, a camera or light that cannot be resolved
+    against the scene's default view, a soft-shadow method named explicitly with a point
+    or directional light. Each distinct scene is built once, then dropped."""
+    from ..methods import MethodError
+    from ..scene import SceneError
     from .run import runnable_methods
 
+    def where(i):
+        return (f"(in [sweep] grid point {i + 1} of {len(configs)}: "
+                + ", ".join(f"{k} = {show(v)}" for k, v in zip(keys, combos[i])) + ")")
+
+    groups: dict[str, list[int]] = {}
     for i, config in enumerate(configs):
-        if config.methods.all or not any(get(n).soft for n in config.methods.names):
-            continue
+        groups.setdefault(json.dumps(config.scene.model_dump(), sort_keys=True, default=str),
+                          []).append(i)
+    for points in groups.values():
         try:
-            runnable_methods(config, config.views(config.build_scene()))
-        except MethodError as exc:
-            where = ", ".join(f"{k} = {show(v)}" for k, v in zip(keys, combos[i]))
-            raise ConfigError(f"{label}: methods.names: {exc} (in [sweep] grid point "
-                              f"{i + 1} of {len(configs)}: {where})") from None
+            scene = configs[points[0]].build_scene()
+        except SceneError as exc:
+            raise ConfigError(f"{label}: scene: {exc} {where(points[0])}") from None
+        seen = set()
+        for i in points:
+            config = configs[i]
+            view_key = json.dumps([config.camera.model_dump(), config.light.model_dump(),
+                                   config.animation.model_dump(), list(config.methods.names)],
+                                  sort_keys=True, default=str)
+            if view_key in seen:
+                continue
+            seen.add(view_key)
+            try:
+                runnable_methods(config, config.views(scene))
+            except ConfigError as exc:
+                raise ConfigError(f"{exc} {where(i)}") from None
+            except MethodError as exc:
+                raise ConfigError(f"{label}: methods.names: {exc} {where(i)}") from None
 
 
 # --------------------------------------------------------------------------- a task
