@@ -21,8 +21,6 @@
 # %%
 import os
 
-import numpy as np
-
 import shadowlab as sl
 
 SIZE = os.environ.get("SHADOWLAB_NOTEBOOK_SIZE", "full")

@@ -178,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
 
     args = _parser().parse_args(argv)
     enable_compilation_cache()
-    handlers = {"run": _cmd_run, "sweep": _cmd_sweep, "methods": _cmd_methods, "scenes": _cmd_scenes,
+    handlers = {"run": _cmd_run, "sweep": _cmd_sweep, "methods": _cmd_methods,
+                "scenes": _cmd_scenes,
                 "bench": _cmd_bench, "figures": _cmd_figures}
     try:
         return handlers[args.command](args)

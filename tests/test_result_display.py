@@ -18,8 +18,8 @@ def _hard():
     valid = np.ones_like(lit)
     valid[0] = False
     tests = rng.integers(0, 50, size=lit.shape)
-    res = ShadowResult(lit, {"tests": int(tests.sum()), "tests_per_pixel": tests}, {"total": 0.5},
-                       method="toy")
+    res = ShadowResult(lit, {"tests": int(tests.sum()), "tests_per_pixel": tests},
+                       {"total": 0.5}, method="toy")
     return res, truth, valid
 
 
@@ -76,4 +76,5 @@ def test_evaluate_attaches_its_reference():
     assert ev.result.reference is ev.reference
     assert np.array_equal(ev.result.valid, gbuf.valid)
     fig = ev.result.plot()
-    assert fig.axes[1].get_title() == f"error: {ev.error['mismatches']} px (0 false lit, 0 false shadow)"
+    want = f"error: {ev.error['mismatches']} px (0 false lit, 0 false shadow)"
+    assert fig.axes[1].get_title() == want

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from shadowlab.cli import main
-from shadowlab.config import ConfigError, load_config
+from shadowlab.config import ConfigError
 from shadowlab.harness import evaluate
 from shadowlab.harness.sweep import load_sweep, read_task, run_sweep
 
@@ -43,7 +43,8 @@ def _write(tmp_path, text, name="grid.toml"):
 
 
 @pytest.mark.parametrize("sweep, message", [
-    ('"camera.resolutin" = [[8, 8]]', "unknown key 'camera.resolutin' (did you mean 'resolution'?)"),
+    ('"camera.resolutin" = [[8, 8]]',
+     "unknown key 'camera.resolutin' (did you mean 'resolution'?)"),
     ('"camera.resolution" = [[8, 8], [0, 8]]', "camera.resolution must be two positive integers"),
     ('"methods.options.brute_force.chunk" = [8, 5]', "methods.options.brute_force.chunk"),
     ('"camera.resolution" = [8, 8]', "camera.resolution must be two positive integers"),
@@ -226,7 +227,8 @@ def test_figures_run_on_the_cluster(tmp_path, cluster):
     (tmp_path / "configs" / "experiments").mkdir(parents=True)
     for name, n in (("one", 3), ("two", 5)):
         (tmp_path / "experiments" / f"{name}.py").write_text(_TOY_EXPERIMENT)
-        (tmp_path / "configs" / "experiments" / f"{name}.full.toml").write_text(f"frames = {n}\n")
+        config = tmp_path / "configs" / "experiments" / f"{name}.full.toml"
+        config.write_text(f"frames = {n}\n")
     assert regenerate(tmp_path, size="full", client=client, progress=False) == []
     workers = set(client.run(os.getpid).values())
     for name, n in (("one", 3), ("two", 5)):
@@ -252,7 +254,8 @@ def test_ctrl_c_leaves_a_consistent_folder_and_a_rerun_resumes(tmp_path, cluster
 
     monkeypatch.setattr(distributed, "as_completed", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        run_sweep(sweep, out, client=client, jax_cache=False, progress=False, log=lambda s: None)
+        run_sweep(sweep, out, client=client, jax_cache=False, progress=False,
+                  log=lambda s: None)
     monkeypatch.setattr(distributed, "as_completed", real)
     assert not (out / "results.parquet").exists()
     files = list((out / "tasks").glob("[!.]*.json"))
