@@ -42,6 +42,7 @@ import json
 import os
 import statistics
 import time
+import uuid
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -472,24 +473,26 @@ def run_sweep(sweep: Sweep, out_dir: str | os.PathLike, *, workers: int | None =
         cluster = None
         if own:
             client, cluster = dask_client(workers, scheduler)
-        futures = []
+        futures = {}
         try:
             from distributed import as_completed
 
-            futures = [client.submit(run_task, t, str(out.resolve()), jax_cache,
-                                     key=f"shadowlab-task-{t.key}", pure=False)
-                       for t in todo]
+            # Dask keys are unique per submission: a key cancelled by an interrupted
+            # sweep may still be known to the scheduler when the sweep is run again.
+            token = uuid.uuid4().hex[:8]
+            futures = {client.submit(run_task, t, str(out.resolve()), jax_cache,
+                                     key=f"shadowlab-task-{t.key}-{token}", pure=False): t.key
+                       for t in todo}
             with tqdm(total=len(todo), unit="task", desc="sweep", disable=not progress) as bar:
-                for future in as_completed(futures):
+                for future in as_completed(list(futures)):
                     try:
                         future.result()
                     except Exception as exc:            # a task's error: record, go on
-                        failures[future.key.removeprefix("shadowlab-task-")] = \
-                            f"{type(exc).__name__}: {exc}"
+                        failures[futures[future]] = f"{type(exc).__name__}: {exc}"
                     bar.update(1)
         except BaseException:
             if futures:
-                client.cancel(futures)
+                client.cancel(list(futures))
             raise
         finally:
             if own:
