@@ -1,4 +1,4 @@
-"""The ``shadowlab`` command: run | methods | scenes | bench | figures.
+"""The ``shadowlab`` command: run | sweep | methods | scenes | bench | figures.
 
 Every user error (an invalid config or experiment config, a bad option, a scene that
 cannot be built, work too large for the machine) prints ``shadowlab: error: <message>``
@@ -29,6 +29,20 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", help="output folder (default: the config's output.dir)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    sweep = sub.add_parser("sweep", help="a grid of configs x frames on a Dask cluster, "
+                           "gathered into one results table")
+    sweep.add_argument("config", help="a TOML run config with a [sweep] table")
+    sweep.add_argument("--set", dest="overrides", action="append", default=[],
+                       metavar="KEY=VALUE", help="override a key of every grid point")
+    sweep.add_argument("--out", help="output folder (default: the config's output.dir)")
+    sweep.add_argument("--workers", type=int, default=None,
+                       help="worker processes of the local cluster (default: CPU count)")
+    sweep.add_argument("--scheduler", metavar="ADDRESS",
+                       help="use the existing Dask cluster at ADDRESS (tcp://host:8786)")
+    sweep.add_argument("--repeats", type=int, default=3,
+                       help="warm calls per method and task (median; default 3)")
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+
     sub.add_parser("methods", help="list methods and their options")
     sub.add_parser("scenes", help="list procedural scenes and their parameters")
 
@@ -47,6 +61,10 @@ def _parser() -> argparse.ArgumentParser:
     figures.add_argument("--only", action="append", default=[], metavar="NAME",
                          help="only this experiment (repeatable)")
     figures.add_argument("--root", default=".", help="repository root (default: .)")
+    figures.add_argument("--workers", type=int, default=None,
+                         help="run the experiments on a local Dask cluster of N processes")
+    figures.add_argument("--scheduler", metavar="ADDRESS",
+                         help="run the experiments on the Dask cluster at ADDRESS")
     figures.add_argument("--quiet", action="store_true")
     return ap
 
@@ -60,6 +78,32 @@ def _cmd_run(args) -> int:
     print(format_table(out.metrics))
     for path in out.files:
         print(f"wrote {path}")
+    return 0
+
+
+def _cmd_sweep(args) -> int:
+    from .config import ConfigError
+    from .harness.sweep import SweepError, load_sweep, run_sweep
+
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"sweep --workers must be >= 1, got {args.workers}")
+    if args.repeats < 0:
+        raise ConfigError(f"sweep --repeats must be >= 0, got {args.repeats}")
+    if args.workers is not None and args.scheduler:
+        raise ConfigError("sweep: --workers starts a local cluster and --scheduler uses an "
+                          "existing one; give one of them")
+    sweep = load_sweep(args.config, args.overrides, repeats=args.repeats)
+    out = args.out or sweep.configs[0].output.dir
+    try:
+        result = run_sweep(sweep, out, workers=args.workers, scheduler=args.scheduler,
+                           progress=not args.quiet)
+    except SweepError as exc:
+        print(f"shadowlab: {exc}", file=sys.stderr)
+        print(f"wrote {Path(out) / 'results.parquet'} (finished tasks only)")
+        return 1
+    print(f"{len(result.table)} rows ({result.ran} tasks run, {result.already_done} "
+          f"already done)")
+    print(f"wrote {result.path}")
     return 0
 
 
@@ -112,8 +156,16 @@ def _cmd_bench(args) -> int:
 def _cmd_figures(args) -> int:
     from .harness.figures import regenerate
 
+    from .config import ConfigError
+
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"figures --workers must be >= 1, got {args.workers}")
+    if args.workers is not None and args.scheduler:
+        raise ConfigError("figures: give --workers (a local cluster) or --scheduler (an "
+                          "existing one), not both")
     failures = regenerate(Path(args.root), size=args.size, only=args.only,
-                          progress=not args.quiet)
+                          progress=not args.quiet, workers=args.workers,
+                          scheduler=args.scheduler)
     return 1 if failures else 0
 
 
@@ -126,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
 
     args = _parser().parse_args(argv)
     enable_compilation_cache()
-    handlers = {"run": _cmd_run, "methods": _cmd_methods, "scenes": _cmd_scenes,
+    handlers = {"run": _cmd_run, "sweep": _cmd_sweep, "methods": _cmd_methods,
+                "scenes": _cmd_scenes,
                 "bench": _cmd_bench, "figures": _cmd_figures}
     try:
         return handlers[args.command](args)
@@ -139,7 +192,9 @@ def main(argv: list[str] | None = None) -> int:
               "such work is refused up front; no output file was written", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("shadowlab: interrupted; no output file was left half-written", file=sys.stderr)
+        print("shadowlab: interrupted; no output file was left half-written"
+              + (" (finished sweep tasks are kept and a re-run skips them)"
+                 if args.command == "sweep" else ""), file=sys.stderr)
         return 130
 
 

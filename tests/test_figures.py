@@ -1,11 +1,13 @@
-"""Every experiment runs at CI size, writes its figure and arrays, and passes its check."""
+"""Every experiment runs at CI size, writes its figure and arrays, passes its check, and
+gives the arrays of its committed golden file (tests/golden/, shadowlab.harness.golden)."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from shadowlab.harness.figures import discover, regenerate, run_experiment
+from shadowlab.harness import golden
+from shadowlab.harness.figures import discover, load_module, regenerate, run_experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 EXPERIMENTS = sorted(discover(ROOT))
@@ -21,6 +23,35 @@ def test_experiment_at_ci_size(name, tmp_path):
         want = np.asarray(arrays[key])
         nan_ok = want.dtype.kind in "fc"          # NaN marks "not applicable" in some tables
         assert np.array_equal(saved[key], want, equal_nan=nan_ok), key
+    # The figure's data as committed: counters and masks exactly, timings not at all.
+    problems = golden.compare(ROOT, name, arrays, load_module(discover(ROOT)[name]))
+    assert not problems, (f"{name}: the CI-size arrays differ from tests/golden/{name}.npz; "
+                          f"if the change is intended, regenerate and commit: python -m "
+                          f"shadowlab.harness.golden {name}\n  " + "\n  ".join(problems))
+
+
+def test_golden_comparison_catches_changes_and_ignores_timings(tmp_path):
+    arrays = {"mask": np.array([True, False]), "tests": np.arange(4), "mae": np.array([0.25]),
+              "traverse_seconds": np.array([1.0]), "labels": np.array(["a", "b"])}
+    golden.write(tmp_path, "toy", arrays)
+    assert "traverse_seconds" not in np.load(tmp_path / "tests" / "golden" / "toy.npz").files
+    slower = {**arrays, "traverse_seconds": np.array([9.0])}
+    assert golden.compare(tmp_path, "toy", slower) == []
+    assert golden.compare(tmp_path, "toy", {**arrays, "mae": np.array([0.25 + 1e-12])}) == []
+    changed = {**arrays, "tests": np.array([0, 1, 2, 4])}
+    assert golden.compare(tmp_path, "toy", changed) == [
+        "tests: 1 of 4 values differ (first: np.int64(4), golden np.int64(3))"]
+    assert golden.compare(tmp_path, "toy", {**arrays, "mask": np.array([True, True])})
+    assert golden.compare(tmp_path, "toy", {**arrays, "mae": np.array([0.26])})
+    assert golden.compare(tmp_path, "toy", {**arrays, "extra": np.zeros(1)}) == [
+        "extra: new array, not in the golden file"]
+    assert "no golden file" in golden.compare(tmp_path, "other", arrays)[0]
+
+
+def test_every_experiment_has_a_golden_file():
+    for name in EXPERIMENTS:
+        assert (ROOT / "tests" / "golden" / f"{name}.npz").exists(), (
+            f"python -m shadowlab.harness.golden {name}")
 
 
 def test_every_experiment_has_both_sizes():

@@ -55,19 +55,26 @@ def load_config(path: str | os.PathLike | None = None,
             override, an unknown key, a value of the wrong type or range, or work too
             large for the machine.
     """
-    if path is None:
-        label = BUILTIN_DEFAULT
-        base_dir = Path.cwd()
-        text = _package.files("shadowlab").joinpath("configs", "default.toml").read_text("utf-8")
-        data = parse_toml(text, label)
-        default_out = "runs/default"
-    else:
-        p = Path(path)
-        label = str(path)
-        data = read_toml(p, label, what="config file")
-        base_dir = p.resolve().parent
-        default_out = f"runs/{p.stem}"
+    data, label, base_dir, default_out = read_source(path)
+    return config_from_data(data, label, base_dir, default_out, overrides,
+                            check_memory=check_memory)
 
+
+def read_source(path: str | os.PathLike | None) -> tuple[dict, str, Path, str]:
+    """The parsed TOML of ``path`` (None: the built-in default), with its error label,
+    the folder its relative paths resolve against and its default ``output.dir``."""
+    if path is None:
+        text = _package.files("shadowlab").joinpath("configs", "default.toml").read_text("utf-8")
+        return parse_toml(text, BUILTIN_DEFAULT), BUILTIN_DEFAULT, Path.cwd(), "runs/default"
+    p = Path(path)
+    return (read_toml(p, str(path), what="config file"), str(path), p.resolve().parent,
+            f"runs/{p.stem}")
+
+
+def config_from_data(data: dict, label: str, base_dir: Path, default_out: str,
+                     overrides: Sequence[str] = (), *, check_memory: bool = True) -> RunConfig:
+    """Validate the parsed config ``data`` (the tables of a run config) after applying
+    ``overrides``; errors name ``label`` (see :func:`load_config`)."""
     if isinstance(overrides, str):          # one override passed on its own
         overrides = (overrides,)
     override_keys = []

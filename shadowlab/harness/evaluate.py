@@ -120,7 +120,8 @@ class Evaluation:
     """What :func:`evaluate` measured.
 
     Attributes:
-        result: the last call's ShadowResult (lit [H, W], counters, its own timings).
+        result: the last call's ShadowResult (lit [H, W], counters, its own timings),
+            with the reference and valid mask attached (its display shows the error).
         error: the metric's dict (see the module docstring).
         timings: seconds: the median over the warm calls of each stage and of ``total``
             (compile excluded), and ``<stage>_compile`` summed over all calls.
@@ -207,6 +208,7 @@ def evaluate(scene, gbuf, light, method: str, options: dict | None = None,
     timings = median_timings(runs or all_calls[:1], all_calls)
     truth = refs.for_kind(info.kind)
     error = (metric or default_metric(info.kind))(result, truth, refs)
+    result = result.with_reference(truth, refs.gbuf.valid)     # for its display
     return Evaluation(method, info.kind, result, error, timings, all_calls[0], runs, truth)
 
 

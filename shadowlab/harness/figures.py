@@ -168,9 +168,16 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
 
 
 def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
-               progress: bool = True, out: Path | None = None) -> list[str]:
+               progress: bool = True, out: Path | None = None, *, workers: int | None = None,
+               scheduler: str | None = None, client=None) -> list[str]:
     """Run every experiment (or ``only`` those) writing to ``out`` (default
     ``root/figures``); return the names that failed.
+
+    With ``workers``, ``scheduler`` or ``client`` the experiments run as tasks on Dask
+    distributed, one task per experiment, as ``shadowlab sweep`` runs its tasks
+    (:func:`shadowlab.harness.sweep.dask_client`): a local cluster of ``workers``
+    processes, the cluster at ``scheduler``, or the given client. Every worker must see
+    ``root`` at the same path (outputs are written there, atomically).
 
     Raises:
         ExperimentError: an unknown experiment name, or an invalid config (all configs
@@ -184,16 +191,65 @@ def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
                               f"available: {', '.join(found)}")
     for name in names:              # every config is checked before any experiment runs
         load_experiment_config(root, name, size)
+    if workers is not None or scheduler is not None or client is not None:
+        return _regenerate_on_dask(root, size, names, progress, out, workers, scheduler,
+                                   client)
     failures = []
     for name in names:
-        t0 = time.perf_counter()
-        try:
-            run_experiment(root, name, size, out)
-            status = "ok"
-        except Exception:
-            traceback.print_exc()
+        name, status, seconds = run_one(root, name, size, out)
+        if status != "ok":
             failures.append(name)
-            status = "FAILED"
         if progress:
-            print(f"{name:<32} {status:<7} {time.perf_counter() - t0:7.1f} s", file=sys.stderr)
+            print(f"{name:<32} {status:<7} {seconds:7.1f} s", file=sys.stderr)
     return failures
+
+
+def run_one(root: Path, name: str, size: str, out: Path | None = None,
+            jax_cache: bool = False) -> tuple[str, str, float]:
+    """Run one experiment, printing any traceback: (name, "ok" or "FAILED", seconds).
+    ``jax_cache``: turn on the persistent JAX cache first (what a Dask worker does)."""
+    if jax_cache:
+        from ..core.jaxcache import enable_compilation_cache
+
+        enable_compilation_cache()
+    t0 = time.perf_counter()
+    try:
+        run_experiment(Path(root), name, size, None if out is None else Path(out))
+        status = "ok"
+    except Exception:
+        traceback.print_exc()
+        status = "FAILED"
+    return name, status, time.perf_counter() - t0
+
+
+def _regenerate_on_dask(root, size, names, progress, out, workers, scheduler, client):
+    from distributed import as_completed
+
+    from .sweep import dask_client
+
+    own = client is None
+    cluster = None
+    if own:
+        client, cluster = dask_client(workers, scheduler)
+    failures = []
+    try:
+        futures = {client.submit(run_one, str(Path(root).resolve()), name, size,
+                                 None if out is None else str(Path(out).resolve()), True,
+                                 key=f"shadowlab-figure-{size}-{name}", pure=False): name
+                   for name in names}
+        for future in as_completed(list(futures)):
+            try:
+                _, status, seconds = future.result()
+            except Exception as exc:            # e.g. its worker died too often
+                status, seconds = f"FAILED ({type(exc).__name__})", 0.0
+            name = futures[future]
+            if status != "ok":
+                failures.append(name)
+            if progress:
+                print(f"{name:<32} {status:<7} {seconds:7.1f} s", file=sys.stderr)
+    finally:
+        if own:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    return sorted(failures, key=names.index)
