@@ -177,6 +177,9 @@ class MethodInfo:
         stages: timing stage names the method may report (a run reports a subset).
         kernel: the Warp reference kernel version, ``fn(scene, gbuf, light, **options)``,
             or None (set by ``registry.register_kernel``).
+        frame: where the frame origin is centred for this method, "camera" or "light"
+            (``shadowlab.core.frame.localize``); the method and its kernel get the
+            scene, G-buffer and light relative to it.
     """
 
     name: str
@@ -188,6 +191,7 @@ class MethodInfo:
     stages: tuple[str, ...] = ()
     paper: str = ""
     kernel: Callable | None = None
+    frame: str = "camera"
 
     @property
     def exact(self) -> bool:

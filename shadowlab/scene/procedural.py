@@ -2,7 +2,8 @@
 
 Every scene is a :class:`~shadowlab.scene.mesh.Scene` (float64 vertices in world
 units, int32 faces, one object id per distinct object); Y is up and the ground, when
-there is one, is object 0 (``"ground"``), a plane at y = 0. The same parameters and
+there is one, is object 0 (``"ground"``), a plane at y = 0 (for ``city``, a closed
+slab whose top face is y = 0, before the ``offset``). The same parameters and
 ``seed`` always give bit-identical arrays (``numpy.random.default_rng(seed)``).
 
 =============  ==========================================================  ==========
