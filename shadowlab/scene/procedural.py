@@ -19,7 +19,7 @@ terrain        a fractal height field under a low sun (soft shadows)         18,
 blobs          marching-cubes surfaces of a sum of Gaussians over a ground   5,092
 soup           degenerate, coplanar, interpenetrating, non-manifold, open    2,002
                and duplicated triangles (robustness)
-city           closed boxes on a closed ground slab, a wall of thin posts;   1,164
+city           closed boxes on a closed ground slab, a wall of thin posts;     732
                ``offset`` moves it far from the origin (precision);
                ``defects`` adds needles, slivers, duplicates, T-junctions
 =============  ==========================================================  ==========
