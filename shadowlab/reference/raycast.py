@@ -191,7 +191,8 @@ def segments_occluded(scene: Scene, points: np.ndarray, normals: np.ndarray,
     Give ``light_points`` [N or 1, 3] (positions on the light) or ``light_dirs``
     [N or 1, 3] (unit directions to a light at infinity). The ray runs from the light
     to the point and stops where it comes within ``eps`` (world units) of the plane
-    through the point with unit normal ``normals`` [N, 3]. Points are world
+    through the point with unit normal ``normals`` [N, 3]; for light points it starts
+    ``eps`` from the light (a surface through the light is not hit). Points are world
     coordinates; Embree casts relative to ``frame`` (float64 [3], default 0).
     """
     points = np.asarray(points, dtype=np.float64)
@@ -211,7 +212,13 @@ def segments_occluded(scene: Scene, points: np.ndarray, normals: np.ndarray,
         seg = points - origin
     direction = seg / np.maximum(length, 1e-300)[:, None]
     facing = np.maximum(-np.einsum("ij,ij->i", direction, normals), 1e-6)
-    return occluded(scene, origin, direction, np.maximum(length - eps / facing, 0.0), frame)
+    far = length - eps / facing
+    if light_points is not None:
+        # The light's end: the ray starts eps from the light, so a surface through a
+        # point light (edge-on to it, casting no shadow volume) is not hit at t = 0.
+        origin = origin + eps * direction
+        far = far - eps
+    return occluded(scene, origin, direction, np.maximum(far, 0.0), frame)
 
 
 def render_gbuffer(scene: Scene, camera: Camera) -> GBuffer:

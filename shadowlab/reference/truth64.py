@@ -11,7 +11,8 @@ not depend on Embree, on JAX or on the frame origin the rest of shadowlab uses:
   samples, computed relative to the light for a point light (relative to the sample
   for a directional light): lit when the sample faces the light and no triangle
   crosses the segment from the sample to the light more than ``eps = shadow_eps *
-  diagonal`` above the sample's tangent plane. Triangle edges are inclusive.
+  diagonal`` above the sample's tangent plane, and (point light) more than ``eps``
+  from the light along the segment. Triangle edges are inclusive.
 
 Cost is pixels x triangles (chunked); meant for small images (<= 128 x 128) and a few
 thousand triangles.
@@ -114,7 +115,8 @@ def hard_shadows(scene: Scene, points: np.ndarray, normals: np.ndarray, light: L
         i = idx[lo:lo + step]
         if lh[3]:
             t, hit = _crossings(p[i], d[i], tri)
-            hit &= (t > 0) & (t < 1)
+            # crossings within eps of the light are ignored, as by the reference
+            hit &= (t > 0) & ((1 - t) * np.linalg.norm(d[i], axis=1)[:, None] > eps)
         else:
             t, hit = _directional(p[i], d[i], tri)             # sample-relative
             hit &= t > 0
