@@ -52,10 +52,28 @@ def frame_cell(scene: Scene) -> float:
     return float(2.0 ** math.ceil(math.log2(max(4.0 * scene.diagonal, 1e-30))))
 
 
+_WORLD = [False]
+
+
+@contextlib.contextmanager
+def world_coordinates():
+    """For studies only: inside this block every frame origin is the world origin, as
+    before frame-local coordinates existed (float32 work in world coordinates; the
+    G-buffer positions are still float64 ray/plane crossings). Not thread-safe."""
+    old = _WORLD[0]
+    _WORLD[0] = True
+    try:
+        yield
+    finally:
+        _WORLD[0] = old
+
+
 def frame_origin(scene: Scene, point) -> np.ndarray:
     """float64 [3]: ``point`` [3] (world) snapped to the grid of :func:`frame_cell`,
     so ``|point - origin| <= cell / 2`` per axis, and ``origin = 0`` whenever
-    ``|point| < cell / 2`` per axis."""
+    ``|point| < cell / 2`` per axis (always 0 inside :func:`world_coordinates`)."""
+    if _WORLD[0]:
+        return np.zeros(3)
     cell = frame_cell(scene)
     return np.round(np.asarray(point, np.float64) / cell) * cell
 
