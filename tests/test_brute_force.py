@@ -10,13 +10,14 @@ from scenes import sphere_over_plane
 
 SMALL = {"sphere_grid": {"n": 3, "triangles_per_sphere": 128}, "gate": {"trees": 5},
          "fuzzy": {"triangles": 2000}, "terrain": {"size": 40}, "blobs": {"grid": 20},
-         "soup": {"count": 40}, "atrium": {"bays": 3, "segments": 8, "banners": 4}}
+         "soup": {"count": 40}, "atrium": {"bays": 3, "segments": 8, "banners": 4},
+         "city": {"blocks": 3, "posts": 6, "defects": 1, "offset": [1e5, 0.0, -1e5]}}
 
 
 @pytest.mark.parametrize("name", sorted(GENERATORS))
 def test_equals_reference_on_every_procedural_scene(name, precision):
     scene = sl.load_scene(name, **SMALL[name])
-    view = default_view(name, scene)
+    view = default_view(name, scene, **SMALL[name])
     gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(72, 64)))
     truth = sl.reference_shadows(scene, gbuf, view.light)
     res = sl.compute_shadows(scene, gbuf, view.light, method="brute_force", precision=precision)

@@ -16,11 +16,12 @@ from shadowlab.scene import (GENERATORS, Camera, PointLight, Scene, SceneError, 
 from shadowlab.scene import primitives as prim
 from shadowlab.scene.procedural import Generator, fit_clip_range
 
-NAMES = ["sphere_grid", "gate", "fuzzy", "terrain", "blobs", "soup", "atrium"]
+NAMES = ["sphere_grid", "gate", "fuzzy", "terrain", "blobs", "soup", "atrium", "city"]
 RANDOMISED = [n for n in NAMES if n != "sphere_grid"]   # sphere_grid is regular
 # One integer size parameter per generator (for type/range errors and scaling).
 SIZE_PARAM = {"sphere_grid": "n", "gate": "trees", "fuzzy": "triangles",
-              "terrain": "size", "blobs": "grid", "soup": "count", "atrium": "bays"}
+              "terrain": "size", "blobs": "grid", "soup": "count", "atrium": "bays",
+              "city": "blocks"}
 
 
 def _same(a: Scene, b: Scene) -> bool:
@@ -68,7 +69,10 @@ def test_dtypes_and_ground(scenes):
         if name != "terrain":
             assert s.object_names[0] == "ground"
             ground = s.triangles[s.object_id == 0]
-            assert np.all(ground[..., 1] == 0.0)
+            if name == "city":                      # a closed slab whose top is y = 0
+                assert ground[..., 1].max() == 0.0 and ground[..., 1].min() < 0
+            else:
+                assert np.all(ground[..., 1] == 0.0)
 
 
 # --------------------------------------------------------------------------- determinism

@@ -76,6 +76,13 @@ class ExperimentConfig(BaseModel):
     objects_sweep: _ints(1) = None
     per_triangle_max: number(int, ge=0, optional=True) = None
     shadow_map_resolutions: _ints(1) = None
+    methods: Annotated[Optional[Annotated[list[StrictStr], Field(min_length=1)]],
+                       _wanted("a non-empty list of method names")] = None
+    offsets: Annotated[Optional[Annotated[list[Annotated[float, Field(ge=0)]],
+                                          Field(min_length=1)]],
+                       _wanted("a non-empty list of distances >= 0 (world units)")] = None
+    max_exact_offset: number(float, ge=0, optional=True) = None
+    world_coordinates: Annotated[Optional[StrictBool], _wanted("true or false")] = None
     # references and measurements
     truth_rays: number(int, ge=1, optional=True) = None
     embree_rays: _ints(1) = None

@@ -1,9 +1,39 @@
-"""Helpers every method shares: precision, view samples and their padding, the bias."""
+"""Helpers every method shares: the frame origin, precision, view samples and their
+padding, the bias.
+
+The frame (the precision model; docs/exactness.md, "Precision model")
+----------------------------------------------------------------------
+float32 loses what it cannot represent: at 1e5 world units its spacing is 8 mm, more
+than a typical shadow offset. So no method sees world coordinates. Each frame gets an
+origin :math:`o` (float64 [3]), and every coordinate a method, a kernel or the Embree
+reference works with is ``world - o``, subtracted in float64 *before* any cast to
+float32:
+
+- :func:`frame_origin` picks ``o``: a point (the camera eye by default, the light for
+  a light-centred method) snapped to a grid of spacing :func:`frame_cell` (the power of
+  two at or above 4 x the scene's diagonal). Snapping keeps the origin fixed while the
+  point moves within a cell (an animation reuses one local scene and one Embree BVH),
+  leaves scenes near the world origin at ``o = 0`` (their numbers are unchanged), and
+  makes ``v - o`` exact in float64 for vertices within a factor of two of ``o``. Local
+  coordinates stay within about a cell of zero, so their float32 spacing is that of the
+  scene's size, not of its distance from the world origin.
+- :func:`localize` returns the scene, G-buffer and light in that frame: a translated
+  :class:`Scene` (cached per scene and origin, so per-scene caches keep working), a
+  :class:`GBuffer` whose positions and camera are local (its ``origin`` is 0), and the
+  translated light. Every shared vertex gets the same float64 subtraction, so
+  triangles that share an edge still share it bit for bit after the float32 cast.
+- ``shadowlab.methods.compute_shadows`` and ``run_kernel`` call :func:`localize` once
+  per call, so every registered method and kernel, present and future, runs in the
+  local frame without code of its own; ``register(..., frame="light")`` makes a
+  method light-centred. Lengths (diagonal, ``eps``) do not change under translation.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
+import weakref
 
 import jax
 import numpy as np
@@ -11,7 +41,134 @@ import numpy as np
 from .capacity import bucket, pad
 from ..reference.raycast import GBuffer, facing_samples, shadow_epsilon
 from ..scene.mesh import Scene
-from ..scene.view import Light
+from ..scene.view import Camera, DirectionalLight, Light, PointLight, SphereLight, hard_light
+
+FRAME_CENTRES = ("camera", "light")
+
+
+def frame_cell(scene: Scene) -> float:
+    """The snapping grid of frame origins: the power of two at or above 4 x the scene's
+    bounding-box diagonal (world units)."""
+    return float(2.0 ** math.ceil(math.log2(max(4.0 * scene.diagonal, 1e-30))))
+
+
+_WORLD = [False]
+
+
+@contextlib.contextmanager
+def world_coordinates():
+    """For studies only: inside this block every frame origin is the world origin, as
+    before frame-local coordinates existed (float32 work in world coordinates; the
+    G-buffer positions are still float64 ray/plane crossings). Not thread-safe."""
+    old = _WORLD[0]
+    _WORLD[0] = True
+    try:
+        yield
+    finally:
+        _WORLD[0] = old
+
+
+def frame_origin(scene: Scene, point) -> np.ndarray:
+    """float64 [3]: ``point`` [3] (world) snapped to the grid of :func:`frame_cell`,
+    so ``|point - origin| <= cell / 2`` per axis, and ``origin = 0`` whenever
+    ``|point| < cell / 2`` per axis (always 0 inside :func:`world_coordinates`)."""
+    if _WORLD[0]:
+        return np.zeros(3)
+    cell = frame_cell(scene)
+    return np.round(np.asarray(point, np.float64) / cell) * cell
+
+
+def centre_point(camera: Camera, light: Light, centre: str = "camera") -> np.ndarray:
+    """float64 [3]: the point a frame is centred on: the camera eye, or for
+    ``centre="light"`` a point light's position (the eye for a light at infinity)."""
+    if centre not in FRAME_CENTRES:
+        raise ValueError(f"frame centre must be one of {FRAME_CENTRES}, got {centre!r}")
+    hl = hard_light(light)
+    if centre == "light" and isinstance(hl, PointLight):
+        return np.asarray(hl.position, np.float64)
+    return np.asarray(camera.eye, np.float64)
+
+
+_LOCAL_SCENES: "weakref.WeakKeyDictionary[Scene, dict]" = weakref.WeakKeyDictionary()
+_MAX_ORIGINS = 4        # local copies kept per scene (oldest dropped first)
+
+
+def local_scene(scene: Scene, origin: np.ndarray) -> Scene:
+    """``scene`` translated by ``-origin`` (float64 subtraction, per vertex, so shared
+    vertices stay shared), cached per scene and origin; ``scene`` itself for 0."""
+    origin = np.asarray(origin, np.float64)
+    if not np.any(origin):
+        return scene
+    key = tuple(origin.tolist())
+    cache = _LOCAL_SCENES.setdefault(scene, {})
+    out = cache.get(key)
+    if out is None:
+        out = Scene(scene.vertices - origin, scene.faces, scene.object_id,
+                    scene.object_names, scene.name)
+        if len(cache) >= _MAX_ORIGINS:
+            cache.pop(next(iter(cache)))
+        cache[key] = out
+    return out
+
+
+def local_light(light: Light, origin: np.ndarray) -> Light:
+    """``light`` translated by ``-origin`` (directions and sizes unchanged)."""
+    origin = np.asarray(origin, np.float64)
+    if not np.any(origin) or isinstance(light, DirectionalLight):
+        return light
+    if isinstance(light, PointLight):
+        return PointLight(light.position - origin)
+    if isinstance(light, SphereLight) and light.position is not None:
+        return dataclasses.replace(light, position=np.asarray(light.position) - origin)
+    return light
+
+
+def local_camera(camera: Camera, origin: np.ndarray) -> Camera:
+    """``camera`` with eye and target translated by ``-origin``."""
+    origin = np.asarray(origin, np.float64)
+    if not np.any(origin):
+        return camera
+    return dataclasses.replace(camera, eye=camera.eye - origin, target=camera.target - origin)
+
+
+def local_gbuffer(gbuf: GBuffer, origin: np.ndarray) -> GBuffer:
+    """``gbuf`` with positions (valid pixels; 0 elsewhere) and camera relative to
+    ``origin``; the result's ``origin`` is 0 (it is its own frame)."""
+    origin = np.asarray(origin, np.float64)
+    if not np.any(origin):
+        return gbuf
+    pos = np.where(gbuf.valid[..., None], gbuf.position - origin, 0.0)
+    return dataclasses.replace(gbuf, position=pos, camera=local_camera(gbuf.camera, origin),
+                               origin=np.zeros(3))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Frame:
+    """A frame's origin and the inputs translated into it.
+
+    Attributes:
+        origin: float64 [3], world position of the frame's origin.
+        scene, gbuf, light: the inputs relative to ``origin`` (world units).
+    """
+
+    origin: np.ndarray
+    scene: Scene
+    gbuf: GBuffer
+    light: Light
+
+
+def localize(scene: Scene, gbuf: GBuffer, light: Light, centre: str = "camera") -> Frame:
+    """The scene, G-buffer and light relative to the frame origin :func:`frame_origin`
+    of the camera eye (``centre="camera"``) or of the light (``"light"``).
+
+    ``gbuf`` may already be local (its ``origin`` non-zero means its positions are
+    world coordinates, as :func:`~shadowlab.reference.raycast.render_gbuffer` makes
+    them); the positions are translated in float64. Localizing local inputs again is a
+    no-op (their origin snaps to 0).
+    """
+    origin = frame_origin(scene, centre_point(gbuf.camera, light, centre))
+    return Frame(origin, local_scene(scene, origin), local_gbuffer(gbuf, origin),
+                 local_light(light, origin))
 
 
 @contextlib.contextmanager
@@ -30,7 +187,8 @@ class Samples:
 
     Attributes:
         index: int64 [S], flat pixel indices of valid, light-facing pixels.
-        position: float64 [S, 3], world positions.
+        position: float64 [S, 3], positions in the G-buffer's coordinates (world units;
+            relative to the frame origin inside a method, see :func:`localize`).
         normal: float64 [S, 3], unit geometric normals (facing camera and light).
         shape: (H, W) of the image.
     """

@@ -1167,9 +1167,13 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     from ..methods.registry import resolve_options
     from ..core.result import ShadowResult
 
+    from ..core.frame import localize
+
     o = resolve_options("clustered_ptsv", options)
     if o["precision"] != "float32":
         raise ValueError("the clustered PTSV kernels run in float32 only (precision='float32')")
+    local = localize(scene, gbuf, light)                # as the method (camera frame)
+    scene, gbuf, light = local.scene, local.gbuf, local.light
     if o.get("bias_reject"):
         raise ValueError("the clustered PTSV kernels have no bias_reject node test")
     if o.get("plane_set", "own") != "own":

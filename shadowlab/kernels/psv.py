@@ -509,6 +509,9 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
     stackless_cap = o.get("stackless_cap", "paper")
     dev = init(device)
     load(dev)
+    from ..core.frame import localize
+    local = localize(scene, gbuf, light, "light")       # as methods.psv (frame="light")
+    scene, gbuf, light = local.scene, local.gbuf, local.light
     samples, inp, scale, key, light_h = prepare(scene, gbuf, light, o)
     t0 = time.perf_counter()
     tree, bstats = build_tree(inp, o["wedge"], schedule=schedule, device=dev)

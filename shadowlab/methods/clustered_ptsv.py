@@ -55,6 +55,7 @@ from ..core.capacity import pad
 from ..geometry.triangle_setup import shadow_volume_planes as world_setup
 from ..core.frame import (
     BIAS_MODES,
+    localize,
     bucket,
     caster_terms,
     precision_mode,
@@ -405,6 +406,9 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         ``table``, per-sample ``tests``) for analysis and tests.
     """
     timer = StageTimer()
+    # frame-local inputs (a no-op when compute_shadows has localized them already)
+    local = localize(scene, gbuf, light)
+    scene, gbuf, light = local.scene, local.gbuf, local.light
     with timer.stage("samples"):
         samples = view_samples(gbuf, light)
         facing = None                       # tree_samples="facing": every sample faces

@@ -189,6 +189,9 @@ class MethodInfo:
         presets: ``{name: {option: value}}`` named option sets besides the defaults
             (``DEFAULT_PRESET``); empty when the method has none (and then no ``preset``
             option).
+        frame: where the frame origin is centred for this method, "camera" or "light"
+            (``shadowlab.core.frame.localize``); the method and its kernel get the
+            scene, G-buffer and light relative to it.
     """
 
     name: str
@@ -201,6 +204,7 @@ class MethodInfo:
     paper: str = ""
     kernel: Callable | None = None
     presets: dict = dataclasses.field(default_factory=dict)
+    frame: str = "camera"
 
     @property
     def exact(self) -> bool:

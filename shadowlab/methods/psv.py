@@ -680,7 +680,7 @@ _SLCAP = {"stackless_cap": Option("paper", "stackless query at a cap node with a
 
 @register("psv", doc="Partitioned Shadow Volumes: TOP tree, stack query (Gerhards et al. 2015)",
           paper="Gerhards et al. 2015, as in Mora et al. 2016 (Algorithm 1)",
-          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES,
+          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES, frame="light",
           counters=_COUNTERS + _STACK_COUNTERS + _OVERFLOW_COUNTERS)
 def psv(scene, gbuf, light, *, stack_size, **o):
     return _run("psv", scene, gbuf, light, query="stack", depth_test=False,
@@ -689,7 +689,7 @@ def psv(scene, gbuf, light, *, stack_size, **o):
 
 @register("d_psv", doc="PSV stack query with the depth test (Mora et al. 2016)",
           paper="Mora et al. 2016 (Section 3.3)",
-          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES,
+          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES, frame="light",
           counters=_COUNTERS + _STACK_COUNTERS + _OVERFLOW_COUNTERS)
 def d_psv(scene, gbuf, light, *, stack_size, **o):
     return _run("d_psv", scene, gbuf, light, query="stack", depth_test=True,
@@ -699,6 +699,7 @@ def d_psv(scene, gbuf, light, *, stack_size, **o):
 @register("d_stackless", doc="stackless TOP-tree query with ancestor links and depth test "
           "(Mora et al. 2016)", paper="Mora et al. 2016 "
           "(Algorithm 3)", options={**_COMMON, **_SLCAP}, kind="exact", stages=_STAGES,
+          frame="light",
           counters=_COUNTERS)
 def d_stackless(scene, gbuf, light, *, stackless_cap, **o):
     return _run("d_stackless", scene, gbuf, light, query="stackless", depth_test=True,
@@ -708,7 +709,7 @@ def d_stackless(scene, gbuf, light, *, stackless_cap, **o):
 @register("d_hybrid", doc="short-stack TOP-tree query switching to the stackless query "
           "when the stack is full, with depth test (Mora et al. 2016)",
           paper="Mora et al. 2016 (Section 3.5)",
-          options={**_COMMON, **_HSTACK, **_SLCAP}, kind="exact", stages=_STAGES,
+          options={**_COMMON, **_HSTACK, **_SLCAP}, kind="exact", stages=_STAGES, frame="light",
           counters=_COUNTERS + _STACK_COUNTERS + _SWITCH_COUNTERS)
 def d_hybrid(scene, gbuf, light, *, stack_size, stackless_cap, **o):
     return _run("d_hybrid", scene, gbuf, light, query="hybrid", depth_test=True,

@@ -15,6 +15,7 @@ import dataclasses
 from typing import Callable
 
 from ..core.counters import check as check_counters
+from ..core.frame import FRAME_CENTRES, localize
 from .interface import (DEFAULT_PRESET, DEFAULT_SHADOW_EPS, MethodError, MethodInfo,
                         MethodKind, Option, OptionsModel, preset_option)
 
@@ -32,8 +33,13 @@ _REGISTRY: dict[str, MethodInfo] = {}
 def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
              kind: MethodKind | str | None = None, counters: tuple[str, ...] | None = None,
              stages: tuple[str, ...] = (), exact: bool = True, soft: bool = False,
-             paper: str = "", presets: dict[str, dict] | None = None):
+             paper: str = "", presets: dict[str, dict] | None = None,
+             frame: str = "camera"):
     """Decorator that adds a method to the registry.
+
+    ``frame`` ("camera" or "light") centres the frame-local coordinates the method
+    runs in (``shadowlab.core.frame.localize``, applied by :func:`compute_shadows` and
+    :func:`run_kernel`).
 
     ``kind`` defaults from the older flags: ``soft`` -> soft, else ``exact`` -> exact,
     else approximate. ``counters`` (names from ``shadowlab.core.counters.COUNTERS``) and
@@ -46,6 +52,9 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
         kind = MethodKind.SOFT if soft else (MethodKind.EXACT if exact else
                                               MethodKind.APPROXIMATE)
     kind = MethodKind(kind)
+    if frame not in FRAME_CENTRES:
+        raise ValueError(f"register({name!r}): frame must be one of {FRAME_CENTRES}, "
+                         f"got {frame!r}")
     if counters is not None:
         check_counters(dict.fromkeys(counters))
 
@@ -61,7 +70,8 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
         old = _REGISTRY.get(name)
         info = MethodInfo(name, fn, doc, opts, kind,
                           None if counters is None else tuple(counters),
-                          tuple(stages), paper, old.kernel if old else None, sets)
+                          tuple(stages), paper, old.kernel if old else None, sets,
+                          frame)
         for preset, values in sets.items():
             if "preset" in values:
                 raise ValueError(f"method {name!r}: preset {preset!r} sets 'preset'")
@@ -161,6 +171,9 @@ def stamp(result, name: str, options: dict):
 def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
     """Run a registered method; see ``shadowlab.methods.available()`` for names and options.
 
+    The method runs on the scene, G-buffer and light translated to its frame origin
+    (``shadowlab.core.frame.localize``: world minus origin in float64, then float32).
+
     Returns:
         ShadowResult with ``lit`` [H, W], ``counters``, ``timings`` (seconds per stage,
         ``<stage>_compile`` apart, ``total``), ``method`` and the resolved ``options``.
@@ -168,7 +181,8 @@ def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
     info = get(method)
     info.check_light(light)
     opts = info.resolve_options(options)
-    result = info.fn(scene, gbuf, light, **info.call_options(opts))
+    local = localize(scene, gbuf, light, info.frame)
+    result = info.fn(local.scene, local.gbuf, local.light, **info.call_options(opts))
     check_result(info, result)
     return stamp(result, method, opts)
 
@@ -182,7 +196,8 @@ def run_kernel(scene, gbuf, light, method: str, **options):
         with_kernel = ", ".join(n for n in names() if get(n).kernel is not None)
         raise MethodError(f"no kernel version of {method!r}; available: {with_kernel}")
     info.check_light(light)
-    result = info.kernel(scene, gbuf, light, **options)
+    local = localize(scene, gbuf, light, info.frame)
+    result = info.kernel(local.scene, local.gbuf, local.light, **options)
     check_counters(result.counters)
     return result
 

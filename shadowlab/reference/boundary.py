@@ -9,7 +9,8 @@ and against every triangle, how close the segment comes to such a boundary.
 Edge distances are in world units, measured in the caster's plane from the crossing
 point to the nearest edge line, and compared with ``EDGE_ULPS`` float32 spacings of the
 scene's coordinate magnitude (largest absolute coordinate of the vertices and the
-light): the inputs of every method are float32 there, so nothing finer is resolved. A
+light), measured from the G-buffer's frame origin: the inputs of every method are
+float32 coordinates relative to it, so nothing finer is resolved. A
 barycentric tolerance would be too strict on slivers (a 0.02-wide strand) and too loose
 on large triangles.
 """
@@ -26,13 +27,16 @@ EDGE_ULPS = 64            # float32 spacings of the coordinate magnitude (edge t
 CUT_TOLERANCE = 1e-3      # relative distance of the crossing height from eps
 
 
-def edge_tolerance(scene: Scene, light: Light) -> float:
+def edge_tolerance(scene: Scene, light: Light, origin=None) -> float:
     """World units: ``EDGE_ULPS`` float32 spacings of the largest absolute coordinate
-    of the scene's vertices and the (finite) light position."""
+    of the scene's vertices and the (finite) light position, measured from the frame
+    origin ``origin`` (float64 [3], default 0; ``GBuffer.origin``): the methods and
+    Embree work in float32 coordinates relative to it (``shadowlab.core.frame``)."""
     lh = hard_light(light).homogeneous
-    scale = float(np.abs(scene.vertices).max(initial=0.0))
+    o = np.zeros(3) if origin is None else np.asarray(origin, np.float64)
+    scale = float(np.abs(scene.vertices - o).max(initial=0.0))
     if lh[3]:
-        scale = max(scale, float(np.abs(lh[:3] / lh[3]).max()))
+        scale = max(scale, float(np.abs(lh[:3] / lh[3] - o).max()))
     return EDGE_ULPS * float(np.finfo(np.float32).eps) * max(scale, 1.0)
 
 
@@ -56,7 +60,7 @@ def boundary_distance(scene: Scene, gbuf: GBuffer, light: Light, pixels: np.ndar
     eps = shadow_epsilon(scene, shadow_eps)
     tri = scene.triangles
     a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    reach = edge_tolerance(scene, light) if reach is None else reach
+    reach = edge_tolerance(scene, light, gbuf.origin) if reach is None else reach
     # World distance per unit of each barycentric coordinate: the triangle's height
     # over the edge where that coordinate is 0 (u: edge v0-v2, v: v0-v1, w: v1-v2).
     twice_area = np.linalg.norm(np.cross(e1, e2), axis=-1)
@@ -99,12 +103,12 @@ def boundary_distance(scene: Scene, gbuf: GBuffer, light: Light, pixels: np.ndar
 def unexplained_mismatches(scene: Scene, gbuf: GBuffer, light: Light, lit: np.ndarray,
                            truth: np.ndarray, shadow_eps: float = DEFAULT_SHADOW_EPS) -> np.ndarray:
     """int [K, 2]: mismatched valid pixels that lie on no shadow boundary (within
-    ``edge_tolerance(scene, light)`` world units of a caster's edge or
+    ``edge_tolerance(scene, light, gbuf.origin)`` world units of a caster's edge or
     ``CUT_TOLERANCE`` of the cut)."""
     bad = np.argwhere((np.asarray(lit, bool) != np.asarray(truth, bool)) & gbuf.valid)
     if len(bad) == 0:
         return bad
-    tol = edge_tolerance(scene, light)
+    tol = edge_tolerance(scene, light, gbuf.origin)
     dist = boundary_distance(scene, gbuf, light, bad, shadow_eps, reach=tol)
     explained = (dist["edge"] <= tol) | (dist["cut"] <= CUT_TOLERANCE)
     return bad[~explained]

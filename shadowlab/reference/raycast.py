@@ -1,8 +1,13 @@
 """Exact ray casting with Embree (through embreex): G-buffers and reference shadows.
 
-Embree works in float32. Primary hits are turned into float64 world positions from
-the hit triangle's float64 vertices and the barycentrics Embree returns, so every
-sample lies on its triangle's plane up to float64 rounding.
+Embree works in float32, so every cast runs in a frame-local copy of the scene:
+the geometry and the rays are translated by ``-origin`` in float64 before the cast to
+float32 (``origin`` from :func:`shadowlab.core.frame.frame_origin`, the camera eye
+snapped to a coarse grid; one BVH per scene and origin is cached). Primary hits are
+recomputed in float64 as the crossing of the float64 ray with the hit triangle's
+float64 plane (Embree only picks the triangle), so every sample lies on its
+triangle's plane up to float64 rounding and is accurate to float64 rounding along
+the ray; the G-buffer keeps world positions and records the origin.
 
 Shadow rays are cast *from the light towards the sample* and stop short of it where
 they come within ``eps`` of the sample's tangent plane, ``eps = shadow_eps *
@@ -40,13 +45,18 @@ class GBuffer:
     """Per-pixel primary-hit data, arrays [H, W].
 
     Attributes:
-        position: float64 [H, W, 3], world position of the hit (0 where invalid).
+        position: float64 [H, W, 3], position of the hit (0 where invalid), world
+            coordinates for a G-buffer from :func:`render_gbuffer`.
         normal: float64 [H, W, 3], unit geometric normal turned to face the camera.
         depth: float64 [H, W], view-space depth -z_view (positive, world units; inf where
             invalid).
         triangle: int32 [H, W], hit triangle index into ``scene.faces``, -1 where invalid.
         valid: bool [H, W], the primary ray hit a triangle between near and far.
-        camera: the camera that produced it.
+        camera: the camera that produced it (same coordinates as ``position``).
+        origin: float64 [3], the frame origin the rays were cast in, in the same
+            coordinates (``render_gbuffer``: the snapped camera eye; a G-buffer made
+            frame-local by ``shadowlab.core.frame.localize`` has origin 0). Reference
+            shadow rays are cast in this frame too. Default 0.
     """
 
     position: np.ndarray
@@ -55,25 +65,42 @@ class GBuffer:
     triangle: np.ndarray
     valid: np.ndarray
     camera: Camera
+    origin: np.ndarray | None = None
+
+    def __post_init__(self):
+        origin = np.zeros(3) if self.origin is None else np.asarray(self.origin, np.float64)
+        object.__setattr__(self, "origin", origin.reshape(3))
 
     @property
     def shape(self) -> tuple[int, int]:
         return self.valid.shape
 
 
-_EMBREE_CACHE: "weakref.WeakKeyDictionary[Scene, object]" = weakref.WeakKeyDictionary()
+_EMBREE_CACHE: "weakref.WeakKeyDictionary[Scene, dict]" = weakref.WeakKeyDictionary()
+_MAX_ORIGINS = 4        # BVHs kept per scene (one per frame origin; oldest dropped)
 
 
-def embree_scene(scene: Scene):
-    """The Embree scene (BVH) of ``scene``, built once and cached per Scene object."""
-    cached = _EMBREE_CACHE.get(scene)
+def _origin(origin) -> np.ndarray:
+    return np.zeros(3) if origin is None else np.asarray(origin, np.float64).reshape(3)
+
+
+def embree_scene(scene: Scene, origin=None):
+    """The Embree scene (BVH) of ``scene`` translated by ``-origin`` (float64 [3],
+    default 0): its float32 vertices are ``float32(v - origin)``. Built once and
+    cached per Scene object and origin."""
+    origin = _origin(origin)
+    cache = _EMBREE_CACHE.setdefault(scene, {})
+    key = tuple(origin.tolist())
+    cached = cache.get(key)
     if cached is None:
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
         cached = rtcore_scene.EmbreeScene()
-        TriangleMesh(cached, np.ascontiguousarray(scene.triangles, dtype=np.float32))
-        _EMBREE_CACHE[scene] = cached
+        TriangleMesh(cached, np.ascontiguousarray(scene.triangles - origin, dtype=np.float32))
+        if len(cache) >= _MAX_ORIGINS:
+            cache.pop(next(iter(cache)))
+        cache[key] = cached
     return cached
 
 
@@ -108,11 +135,15 @@ def _run_chunks(fn, n: int) -> None:
 
 
 def intersect(scene: Scene, origins: np.ndarray, directions: np.ndarray,
-              tfar: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Closest hits of rays [N, 3]: ``primID`` int32 [N] (-1 = miss), ``u``, ``v``, ``t``."""
-    es = embree_scene(scene)
+              tfar: np.ndarray | None = None, frame=None) -> dict[str, np.ndarray]:
+    """Closest hits of rays [N, 3]: ``primID`` int32 [N] (-1 = miss), ``u``, ``v``, ``t``.
+
+    ``origins`` are world coordinates; the cast runs relative to ``frame`` (float64 [3],
+    default 0): ray origins and geometry are translated in float64, then cast to float32.
+    """
+    es = embree_scene(scene, frame)
     n = len(origins)
-    o = np.ascontiguousarray(origins, dtype=np.float32)
+    o = np.ascontiguousarray(np.asarray(origins, np.float64) - _origin(frame), dtype=np.float32)
     d = np.ascontiguousarray(directions, dtype=np.float32)
     far = None if tfar is None else np.ascontiguousarray(tfar, dtype=np.float32)
     prim = np.empty(n, np.int32)
@@ -133,11 +164,12 @@ def intersect(scene: Scene, origins: np.ndarray, directions: np.ndarray,
 
 
 def occluded(scene: Scene, origins: np.ndarray, directions: np.ndarray,
-             tfar: np.ndarray) -> np.ndarray:
-    """bool [N]: some triangle lies on the ray segment (origin, origin + tfar * dir)."""
-    es = embree_scene(scene)
+             tfar: np.ndarray, frame=None) -> np.ndarray:
+    """bool [N]: some triangle lies on the ray segment (origin, origin + tfar * dir);
+    world ``origins``, cast relative to ``frame`` as in :func:`intersect`."""
+    es = embree_scene(scene, frame)
     n = len(origins)
-    o = np.ascontiguousarray(origins, dtype=np.float32)
+    o = np.ascontiguousarray(np.asarray(origins, np.float64) - _origin(frame), dtype=np.float32)
     d = np.ascontiguousarray(directions, dtype=np.float32)
     far = np.ascontiguousarray(np.minimum(tfar, 1e30), dtype=np.float32)
     out = np.empty(n, bool)
@@ -152,13 +184,16 @@ def occluded(scene: Scene, origins: np.ndarray, directions: np.ndarray,
 
 def segments_occluded(scene: Scene, points: np.ndarray, normals: np.ndarray,
                       light_points: np.ndarray | None = None,
-                      light_dirs: np.ndarray | None = None, eps: float = 0.0) -> np.ndarray:
+                      light_dirs: np.ndarray | None = None, eps: float = 0.0,
+                      frame=None) -> np.ndarray:
     """bool [N]: is the segment from each point [N, 3] to its light point blocked?
 
     Give ``light_points`` [N or 1, 3] (positions on the light) or ``light_dirs``
     [N or 1, 3] (unit directions to a light at infinity). The ray runs from the light
     to the point and stops where it comes within ``eps`` (world units) of the plane
-    through the point with unit normal ``normals`` [N, 3].
+    through the point with unit normal ``normals`` [N, 3]; for light points it starts
+    ``eps`` from the light (a surface through the light is not hit). Points are world
+    coordinates; Embree casts relative to ``frame`` (float64 [3], default 0).
     """
     points = np.asarray(points, dtype=np.float64)
     if light_points is not None:
@@ -177,24 +212,45 @@ def segments_occluded(scene: Scene, points: np.ndarray, normals: np.ndarray,
         seg = points - origin
     direction = seg / np.maximum(length, 1e-300)[:, None]
     facing = np.maximum(-np.einsum("ij,ij->i", direction, normals), 1e-6)
-    return occluded(scene, origin, direction, np.maximum(length - eps / facing, 0.0))
+    far = length - eps / facing
+    if light_points is not None:
+        # The light's end: the ray starts eps from the light, so a surface through a
+        # point light (edge-on to it, casting no shadow volume) is not hit at t = 0.
+        origin = origin + eps * direction
+        far = far - eps
+    return occluded(scene, origin, direction, np.maximum(far, 0.0), frame)
 
 
 def render_gbuffer(scene: Scene, camera: Camera) -> GBuffer:
-    """Cast one primary ray per pixel centre; see :class:`GBuffer` for the fields."""
+    """Cast one primary ray per pixel centre; see :class:`GBuffer` for the fields.
+
+    The rays are cast relative to the frame origin of the camera eye
+    (:func:`shadowlab.core.frame.frame_origin`), recorded as ``GBuffer.origin``.
+    """
+    from ..core.frame import frame_origin
+
+    frame = frame_origin(scene, camera.eye)
     origins, dirs = camera.primary_rays()
     h, w = camera.height, camera.width
-    hit = intersect(scene, origins.reshape(-1, 3), dirs.reshape(-1, 3))
+    hit = intersect(scene, origins.reshape(-1, 3), dirs.reshape(-1, 3), frame=frame)
     tri = hit["primID"].astype(np.int32)
     valid = tri >= 0
     idx = np.flatnonzero(valid)
-    corners = scene.triangles[tri[idx]]                      # [k, 3, 3] float64
+    corners = scene.triangles[tri[idx]] - frame              # [k, 3, 3] float64, local
     bu = hit["u"][idx].astype(np.float64)[:, None]
     bv = hit["v"][idx].astype(np.float64)[:, None]
-    pos = np.zeros((h * w, 3))
-    pos[idx] = corners[:, 0] * (1 - bu - bv) + corners[:, 1] * bu + corners[:, 2] * bv
-    normal = np.zeros((h * w, 3))
     ng = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    # The float64 crossing of the float64 ray with the hit triangle's plane; Embree's
+    # float32 barycentrics (error ~1e-7 of the triangle's size) only where the ray is
+    # parallel to the plane at float64 precision.
+    o = origins.reshape(-1, 3)[idx] - frame
+    d = dirs.reshape(-1, 3)[idx].astype(np.float64)
+    nd = np.einsum("ij,ij->i", ng, d)
+    t = np.einsum("ij,ij->i", ng, corners[:, 0] - o) / np.where(nd != 0, nd, 1.0)
+    bary = corners[:, 0] * (1 - bu - bv) + corners[:, 1] * bu + corners[:, 2] * bv
+    pos = np.zeros((h * w, 3))
+    pos[idx] = np.where((nd != 0)[:, None], o + t[:, None] * d, bary) + frame
+    normal = np.zeros((h * w, 3))
     ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
     view_dir = pos[idx] - camera.eye
     ng *= np.where(np.einsum("ij,ij->i", ng, view_dir) > 0, -1.0, 1.0)[:, None]
@@ -210,7 +266,7 @@ def render_gbuffer(scene: Scene, camera: Camera) -> GBuffer:
     depth[~valid] = np.inf
     return GBuffer(position=pos.reshape(h, w, 3), normal=normal.reshape(h, w, 3),
                    depth=depth.reshape(h, w), triangle=tri.reshape(h, w),
-                   valid=valid.reshape(h, w), camera=camera)
+                   valid=valid.reshape(h, w), camera=camera, origin=frame)
 
 
 def shadow_epsilon(scene: Scene, shadow_eps: float = DEFAULT_SHADOW_EPS) -> float:
@@ -255,9 +311,11 @@ def reference_shadows(scene: Scene, gbuf: GBuffer, light: Light,
     idx, p, n = facing_samples(gbuf, hl)
     eps = shadow_epsilon(scene, shadow_eps)
     if isinstance(hl, PointLight):
-        blocked = segments_occluded(scene, p, n, light_points=hl.position[None], eps=eps)
+        blocked = segments_occluded(scene, p, n, light_points=hl.position[None], eps=eps,
+                                    frame=gbuf.origin)
     else:
-        blocked = segments_occluded(scene, p, n, light_dirs=-hl.direction[None], eps=eps)
+        blocked = segments_occluded(scene, p, n, light_dirs=-hl.direction[None], eps=eps,
+                                    frame=gbuf.origin)
     lit = np.zeros(gbuf.valid.size, bool)
     lit[idx] = ~blocked
     return lit.reshape(gbuf.valid.shape)
@@ -355,10 +413,12 @@ def soft_reference(scene: Scene, gbuf: GBuffer, light: SphereLight, rays_per_pix
         if len(sel):
             if light.is_sun:
                 blocked = segments_occluded(scene, flat_p, flat_n,
-                                            light_dirs=dirs.reshape(-1, 3)[sel], eps=eps)
+                                            light_dirs=dirs.reshape(-1, 3)[sel], eps=eps,
+                                            frame=gbuf.origin)
             else:
                 blocked = segments_occluded(scene, flat_p, flat_n,
-                                            light_points=target.reshape(-1, 3)[sel], eps=eps)
+                                            light_points=target.reshape(-1, 3)[sel], eps=eps,
+                                            frame=gbuf.origin)
             lit[sel] = ~blocked
         vis[lo:hi] = lit.reshape(m, n_rays).mean(axis=1)
     out = np.zeros(gbuf.valid.size)

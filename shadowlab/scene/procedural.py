@@ -2,7 +2,8 @@
 
 Every scene is a :class:`~shadowlab.scene.mesh.Scene` (float64 vertices in world
 units, int32 faces, one object id per distinct object); Y is up and the ground, when
-there is one, is object 0 (``"ground"``), a plane at y = 0. The same parameters and
+there is one, is object 0 (``"ground"``), a plane at y = 0 (for ``city``, a closed
+slab whose top face is y = 0, before the ``offset``). The same parameters and
 ``seed`` always give bit-identical arrays (``numpy.random.default_rng(seed)``).
 
 =============  ==========================================================  ==========
@@ -20,6 +21,9 @@ soup           degenerate, coplanar, interpenetrating, non-manifold, open    2,0
                and duplicated triangles (robustness)
 atrium         columns, open arches, an open gallery and banners (the        1,686
                architectural stand-in for Pečiva 2013's Sponza)
+city           closed boxes on a closed ground slab, a wall of thin posts;     732
+               ``offset`` moves it far from the origin (precision);
+               ``defects`` adds needles, slivers, duplicates, T-junctions
 =============  ==========================================================  ==========
 
 Use :func:`make` (validates parameters) and :func:`default_view`; :func:`generators`
@@ -43,10 +47,10 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Annotated, Any, Callable, Mapping, Optional
+from typing import Annotated, Any, Callable, Mapping, Optional, Union
 
 import numpy as np
-from pydantic import (BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError,
+from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError,
                       create_model)
 
 from . import primitives as prim
@@ -126,9 +130,21 @@ def _generator(name: str) -> Generator:
     return gen
 
 
+def _finite(x: float) -> float:
+    if not math.isfinite(x):
+        raise ValueError("must be finite")
+    return float(x)
+
+
+_VEC3_ITEM = Annotated[Union[StrictInt, StrictFloat], AfterValidator(_finite)]
+
+
 def _param_type(spec: Param) -> Any:
     """The pydantic type of one parameter: a strict int or finite float within
-    ``[lo, hi]``, optional when the default is ``None``."""
+    ``[lo, hi]``, or (``kind=tuple``) three finite numbers ``[x, y, z]``; optional
+    when the default is ``None``."""
+    if spec.kind is tuple:
+        return tuple[_VEC3_ITEM, _VEC3_ITEM, _VEC3_ITEM]
     base = StrictInt if spec.kind is int else StrictFloat
     typ = Annotated[base, Field(ge=spec.lo, le=spec.hi, allow_inf_nan=False)]
     return Optional[typ] if spec.default is None else typ
@@ -154,6 +170,8 @@ def _plain(value: Any) -> Any:
         return int(value)
     if isinstance(value, np.floating):
         return float(value)
+    if isinstance(value, np.ndarray):
+        return [_plain(v) for v in value.tolist()]
     return value
 
 
@@ -164,6 +182,10 @@ def _param_error(gen: Generator, err: dict) -> SceneError:
     value = err["input"]
     where = f"{gen.name}: parameter {key!r}"
     ctx = err.get("ctx") or {}
+    if spec.kind is tuple:
+        at = f" (item {err['loc'][1]})" if len(err["loc"]) > 1 else ""
+        return SceneError(f"{where} must be three finite numbers [x, y, z], got "
+                          f"{value!r}{at}")
     if value is None:
         return SceneError(f"{where} must not be None")
     if isinstance(value, bool):
@@ -983,3 +1005,100 @@ def grazing_sheet(n: int = 40, jitter: float = 2e-7, seed: int = 0) -> Scene:
     parts.add("wall", prim._mesh([[6, -4, -4], [6, 6, -4], [6, 6, 7], [6, -4, 7]],
                                  [[0, 1, 2], [0, 2, 3]]))
     return parts.scene("grazing_sheet")
+# --------------------------------------------------------------------------- city
+
+def _city_view(scene: Scene, params: dict) -> View:
+    off = np.asarray(params["offset"], dtype=np.float64)
+    w = params["size"] / 2
+    eye = off + (0.35 * w, 1.1 * w, 1.9 * w)
+    target = off + (0.0, 0.0, 0.1 * w)
+    elev = math.radians(params["light_elevation_deg"])
+    light = PointLight(tuple(off + 1.6 * w * np.array(
+        [0.6 * math.cos(elev), math.sin(elev), -0.8 * math.cos(elev)])))
+    if params["light_height"] is not None:
+        light = PointLight(tuple(off + (0.3 * w, params["light_height"], -0.4 * w)))
+    return framed_view(scene, tuple(eye), tuple(target), light)
+
+
+@_register(
+    "city",
+    "large-world precision stress test: closed boxes (buildings) on a closed ground slab "
+    "and a wall of thin posts, translated by `offset`",
+    {"blocks": Param(6, int, 1, 1000, "buildings per side of the square grid"),
+     "posts": Param(24, int, 0, 100_000, "thin posts in the wall along the back edge"),
+     "size": Param(40.0, float, 1e-3, 1e6, "side of the ground slab (world units)"),
+     "offset": Param((0.0, 0.0, 0.0), tuple, doc="[x, y, z] translation of the scene and "
+                     "of its default view (world units)"),
+     "defects": Param(0, int, 0, 1, "1: add needle and sliver triangles, coincident "
+                      "duplicates with opposite windings and T-junction roofs"),
+     "light_elevation_deg": Param(50.0, float, 0.0, 90.0, "elevation of the default point "
+                                  "light over the slab centre, degrees (small: grazing)"),
+     "light_height": Param(None, float, None, None, "put the light at this height (before "
+                           "the offset) instead; a building's roof height puts it in the "
+                           "roof's plane"),
+     "seed": Param(0, int, 0, None, "random seed")},
+    _city_view)
+def _city(name: str, blocks: int, posts: int, size: float, offset, defects: int,
+          light_elevation_deg: float, light_height, seed: int) -> Scene:
+    """Closed meshes with shared edges, for large-world precision tests.
+
+    A ground slab (a closed box of side ``size`` whose top face is y = 0, thickness
+    ``size / 40``) carries ``blocks x blocks`` closed boxes (0.6 of a cell wide) with random
+    heights of 0.3-1.5 cell widths and a wall of
+    ``posts`` thin closed posts (cross-section ``size / 400``) along the back edge.
+    Every box is 12 triangles sharing their edges. ``defects=1`` adds, per building,
+    a needle (length/width 1e4) and a sliver (an almost collinear triangle) floating
+    above it, a coincident duplicate of its roof with the opposite winding, and a
+    roof split at a T-junction (two triangles whose vertex lies on the edge of a third).
+    Everything is translated by ``offset``, after construction in float64, so the
+    scene at any offset is the same scene moved.
+
+    Triangles: ``12 (blocks^2 + posts + 1)``, plus ``8 blocks^2`` with defects.
+    """
+    rng = np.random.default_rng(seed)
+    half = size / 2
+    cell = size / blocks
+    parts = _Parts()
+    parts.add("ground", prim.box((-half, -size / 40, -half), (half, 0.0, half)))
+    ij = np.stack(np.meshgrid(np.arange(blocks), np.arange(blocks), indexing="ij"), -1)
+    ij = ij.reshape(-1, 2).astype(np.float64)
+    x0 = -half + cell * (ij[:, 0] + 0.2)
+    z0 = -half + cell * (ij[:, 1] + 0.2)
+    heights = cell * rng.uniform(0.3, 1.5, len(ij))
+    lo = np.stack([x0, np.zeros(len(ij)), z0], 1)
+    hi = np.stack([x0 + 0.6 * cell, heights, z0 + 0.6 * cell], 1)
+    k = len(ij)
+    parts.add_many([f"building{i}" for i in range(k)], prim.boxes(lo, hi),
+                   np.repeat(np.arange(k), 12))
+    if posts:
+        t = size / 400
+        px = np.linspace(-half + t, half - 2 * t, posts)
+        plo = np.stack([px, np.zeros(posts), np.full(posts, -half + t)], 1)
+        phi = np.stack([px + t, np.full(posts, 0.35 * size), np.full(posts, -half + 2 * t)], 1)
+        parts.add("posts", prim.boxes(plo, phi))
+    if defects:
+        top = heights + 0.25 * cell
+        cx, cz = x0 + 0.3 * cell, z0 + 0.3 * cell
+        L = 0.5 * cell
+        needle = np.stack([np.stack([cx - L, top, cz], 1), np.stack([cx + L, top, cz], 1),
+                           np.stack([cx, top, cz + L * 1e-4], 1)], 1)
+        sliver = np.stack([np.stack([cx - L, top + 0.05 * cell, cz - 0.2 * cell], 1),
+                           np.stack([cx + L, top + 0.05 * cell, cz - 0.2 * cell], 1),
+                           np.stack([cx, top + 0.05 * cell + L * 1e-6, cz - 0.2 * cell], 1)], 1)
+        a = np.stack([x0, heights, z0], 1)
+        b = np.stack([x0 + 0.6 * cell, heights, z0], 1)
+        c = np.stack([x0 + 0.6 * cell, heights, z0 + 0.6 * cell], 1)
+        d = np.stack([x0, heights, z0 + 0.6 * cell], 1)
+        dup = np.stack([a, c, b], 1)          # the roof triangle a, b, c reversed
+        m = 0.5 * (a + c)                     # T-junction: m on the diagonal a-c
+        tj = np.concatenate([np.stack([a, m, d], 1), np.stack([m, c, d], 1)], 0)
+        parts.add("needles", prim.triangle_soup(needle))
+        parts.add("slivers", prim.triangle_soup(sliver))
+        parts.add("duplicates", prim.triangle_soup(dup))
+        parts.add("tjunctions", prim.triangle_soup(tj))
+    scene = parts.scene(name)
+    off = np.asarray(offset, dtype=np.float64)
+    if np.any(off != 0):
+        scene = Scene(scene.vertices + off, scene.faces, scene.object_id, scene.object_names,
+                      scene.name)
+    return scene
