@@ -65,6 +65,14 @@ def _make_writes_atomic() -> bool:
 
 
 _SUFFIX = "-cache"
+def disable_compilation_cache() -> None:
+    """Turn JAX's persistent cache off for this process (a sweep's ``jax_cache=False``);
+    compiled programs are then kept in memory only."""
+    global _ENABLED
+    jax.config.update("jax_enable_compilation_cache", False)
+    _ENABLED = False
+
+
 def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
     """Point JAX's persistent cache at ``path`` (default ``$SHADOWLAB_JAX_CACHE`` or
     ``~/.cache/shadowlab/jax``) and cache every compiled program, however fast."""
@@ -74,6 +82,7 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path:
     if not _ENABLED:
         target.mkdir(parents=True, exist_ok=True)
         _make_writes_atomic()
+        jax.config.update("jax_enable_compilation_cache", True)
         jax.config.update("jax_compilation_cache_dir", str(target))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
