@@ -12,7 +12,7 @@ wp = pytest.importorskip("warp")
 import shadowlab as sl
 from shadowlab.kernels import clustered_ptsv as kc
 from shadowlab.methods.clustered_ptsv import run_traversal_method
-from shadowlab.methods.registry import resolve_options
+from shadowlab.methods.registry import call_options, resolve_options
 from shadowlab.scene.procedural import default_view
 
 SCENES = {
@@ -42,7 +42,7 @@ def _jax(name, directional=False, **opts):
     key = (name, directional, tuple(sorted(opts.items())))
     if key not in _JAX:
         scene, light, gbuf, _ = _scene(name, directional)
-        o = resolve_options("clustered_ptsv", opts)
+        o = call_options("clustered_ptsv", opts)
         _JAX[key] = run_traversal_method(scene, gbuf, light, kind="cluster",
                                          method="clustered_ptsv", options=o, **o)
     return _JAX[key]
@@ -88,7 +88,7 @@ def test_setup_is_bit_exact(name):
 
     scene, light, gbuf, _ = _scene(name)
     _, det = _jax(name)
-    p = kc.prepare(scene, gbuf, light, resolve_options("clustered_ptsv", {}))
+    p = kc.prepare(scene, gbuf, light, call_options("clustered_ptsv", {}))
     n = scene.num_triangles
     f32 = np.float32
     assert p["planes"].dtype == f32 and np.asarray(det["planes"]).shape[0] > n   # padded
@@ -125,7 +125,7 @@ def test_setup_is_bit_exact(name):
 def test_hierarchy_equals_jax(storage, form):
     scene, light, gbuf, _ = _scene("gate")
     _, det = _jax("gate", storage=storage)
-    p = kc.prepare(scene, gbuf, light, resolve_options("clustered_ptsv", {"storage": storage}))
+    p = kc.prepare(scene, gbuf, light, call_options("clustered_ptsv", {"storage": storage}))
     h = kc.build_hierarchy(p["tree"], p["table"], p["keys"], p["coords"], p["scale"], storage,
                            form).host()
     jh = det["hierarchy"]

@@ -1164,12 +1164,12 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     module is loaded first)."""
     from ..structures import cluster_hierarchy as ch
     from ..methods.clustered_ptsv import top_jobs
-    from ..methods.registry import resolve_options
+    from ..methods.registry import call_options
     from ..core.result import ShadowResult
 
     from ..core.frame import localize
 
-    o = resolve_options("clustered_ptsv", options)
+    o = call_options("clustered_ptsv", options)
     if o["precision"] != "float32":
         raise ValueError("the clustered PTSV kernels run in float32 only (precision='float32')")
     local = localize(scene, gbuf, light)                # as the method (camera frame)

@@ -26,7 +26,7 @@ import numpy as np
 import warp as wp
 
 from ..methods import izb as jizb
-from ..methods.registry import resolve_options
+from ..methods.registry import call_options
 from .runtime import init
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
@@ -142,5 +142,5 @@ class WarpEngine:
 
 def run(scene, gbuf, light, device: str | None = None, **options):
     """``izb`` with the Warp list build and tracing; the method's options and counters."""
-    opts = resolve_options("izb", options)
+    opts = call_options("izb", options)
     return jizb.run_frame(scene, gbuf, light, WarpEngine(device), **opts)

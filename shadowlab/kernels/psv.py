@@ -496,12 +496,12 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
     """
     import time
 
-    from ..methods.registry import resolve_options
+    from ..methods.registry import call_options
     from ..core.result import ShadowResult
 
     if method not in METHODS:
         raise ValueError(f"unknown PSV method {method!r}; allowed: {', '.join(METHODS)}")
-    o = resolve_options(method, options)
+    o = call_options(method, options)
     if o["precision"] != "float32":
         raise ValueError("the PSV kernels run in float32 only (precision='float32')")
     kind, depth_test = METHODS[method]

@@ -127,6 +127,13 @@ def resolve_options(name: str, options: dict) -> dict:
     return get(name).resolve_options(options)
 
 
+def call_options(name: str, options: dict) -> dict:
+    """The options method ``name``'s function (or kernel) takes: :func:`resolve_options`
+    with a ``preset`` applied and not passed on."""
+    info = get(name)
+    return info.call_options(info.resolve_options(options))
+
+
 def light_problem(name: str, light) -> str | None:
     """Why ``light`` does not suit method ``name`` (e.g. a soft method on a point light),
     or None."""
