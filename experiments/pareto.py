@@ -198,12 +198,12 @@ def plot(arrays: dict):
             ax.loglog(1000 * arrays["seconds"][s, idx],
                       np.maximum(arrays["fraction"][s, idx], FLOOR), "o-", ms=4,
                       label=f"shadow_map {b}")
-        for i, lab in enumerate(labels):
-            if i in sm:
-                continue
-            marker = "*" if kinds[i] == "exact" else "D"
+        others = [i for i in range(len(labels)) if i not in sm]
+        for j, i in enumerate(others):
+            marker = ("*", "P", "X", "^")[j % 4] if kinds[i] == "exact" else "D"
             ax.loglog(1000 * arrays["seconds"][s, i], max(arrays["fraction"][s, i], FLOOR),
-                      marker, ms=9, label=lab)
+                      marker, ms=9, color=plt.cm.tab20((2 * j) % 20 + j // 10 % 2),
+                      label=labels[i])
         ax.axvline(1000 * arrays["embree_seconds"][s], color="#777777", ls="--",
                    label="Embree shadow rays")
         f = arrays["front_scene"] == name
