@@ -37,6 +37,7 @@ import shadowlab as sl
 from shadowlab.analysis.pareto import pareto_front
 from shadowlab.harness import References, evaluate
 from shadowlab.harness.bench import _soft_curve
+from shadowlab.harness.figures import ExperimentConfigError
 from shadowlab.methods import MethodKind, get, light_problem, names
 from shadowlab.scene.procedural import default_view
 from shadowlab.scene.view import PointLight, SphereLight
@@ -103,7 +104,8 @@ def run(cfg: dict) -> dict:
     Embree soft ray count r [R]: seconds, mismatches, fraction (of valid pixels),
     unexplained (-1: an approximate method or too many to examine) [S, C];
     embree_seconds [S]; soft_seconds, soft_mae, soft_penumbra_mae [S, K] (NaN: the
-    method refuses that light); embree_soft_seconds, embree_soft_mae [S, R]; the fronts
+    method refuses that light, or the scene is not in ``options.soft_scenes``);
+    embree_soft_seconds, embree_soft_mae [S, R] (NaN likewise); the fronts
     as flat rows front_scene/front_label/front_error/front_seconds (and soft_front_*)."""
     names_ = list(cfg["scenes"])
     res = tuple(cfg["resolution"])
@@ -113,6 +115,10 @@ def run(cfg: dict) -> dict:
     hard = hard_configs(opts)
     soft = soft_configs(bool(opts.get("soft_presets", True)))
     rays = [int(r) for r in cfg["embree_rays"]]
+    unknown = sorted(set(opts.get("soft_scenes", names_)) - set(names_))
+    if unknown:
+        raise ExperimentConfigError(f"pareto: options.soft_scenes names {unknown}, not in "
+                                    f"scenes ({', '.join(names_)})")
     keys = ("seconds", "mismatches", "fraction", "unexplained", "embree_seconds",
             "valid_pixels", "soft_seconds", "soft_mae", "soft_penumbra_mae",
             "embree_soft_seconds", "embree_soft_mae")
@@ -143,6 +149,12 @@ def run(cfg: dict) -> dict:
         out["valid_pixels"].append(int(gbuf.valid.sum()))
         front += _front_rows(name, [h[0] for h in hard], row["seconds"], row["fraction"])
 
+        if name not in opts.get("soft_scenes", names_):
+            for k in ("soft_seconds", "soft_mae", "soft_penumbra_mae"):
+                out[k].append([np.nan] * len(soft))
+            out["embree_soft_seconds"].append([np.nan] * len(rays))
+            out["embree_soft_mae"].append([np.nan] * len(rays))
+            continue
         light = soft_light(scene, view.light, float(opts.get("soft_radius", 0.02)))
         srefs = References(scene, gbuf, light, soft_rays=int(cfg["truth_rays"]), seed=0)
         truth = srefs.soft()
@@ -215,6 +227,10 @@ def plot(arrays: dict):
         ax.set_title(f"{name}: hard shadows vs Embree", fontsize=9)
         ax.legend(fontsize=6, ncol=2)
         ax = axes[1, s]
+        if not np.isfinite(arrays["embree_soft_mae"][s]).all():
+            ax.set_title(f"{name}: soft shadows not run at this size", fontsize=9)
+            ax.axis("off")
+            continue
         ax.loglog(1000 * arrays["embree_soft_seconds"][s], arrays["embree_soft_mae"][s],
                   "o-", color="#777777", label="Embree soft (rays/px)")
         for r, t, v in zip(arrays["embree_rays"], arrays["embree_soft_seconds"][s],
@@ -235,13 +251,15 @@ def check(arrays: dict, cfg: dict) -> None:
     """Exact methods have no unexplained mismatch; the fronts are fronts."""
     exact = arrays["kinds"] == "exact"
     assert np.all(arrays["unexplained"][:, exact] == 0), arrays["unexplained"]
+    soft_ran = np.isfinite(arrays["embree_soft_mae"]).all(axis=1)
     for prefix in ("front", "soft_front"):
-        for name in arrays["scenes"]:
+        for s, name in enumerate(arrays["scenes"]):
             f = arrays[f"{prefix}_scene"] == name
-            assert f.any()
+            assert f.any() == (prefix == "front" or bool(soft_ran[s]))
             assert np.all(np.diff(arrays[f"{prefix}_seconds"][f]) < 0)
             assert np.all(np.diff(arrays[f"{prefix}_error"][f]) >= 0)
-    assert np.all(np.diff(arrays["embree_soft_mae"], axis=1) < 0)   # more rays, less error
+    # more rays, less error
+    assert np.all(np.diff(arrays["embree_soft_mae"][soft_ran], axis=1) < 0)
 
 
 def front_table(arrays: dict, prefix: str = "front") -> dict[str, list[dict]]:
@@ -291,7 +309,8 @@ def summary(arrays: dict, cfg: dict) -> dict:
             "embree_soft": [{"rays": int(r), "seconds": float(t), "mae": float(e)}
                             for r, t, e in zip(arrays["embree_rays"],
                                                arrays["embree_soft_seconds"][s],
-                                               arrays["embree_soft_mae"][s])],
+                                               arrays["embree_soft_mae"][s])
+                            if np.isfinite(t)],
         }
     return {"scenes": per_scene, "front": front_table(arrays, "front"),
             "soft_front": front_table(arrays, "soft_front")}

@@ -179,3 +179,13 @@ def test_cli_bench_pareto_renders_the_committed_json(capsys):
     assert main(["bench", "--pareto", "--render-only", "--root", str(ROOT)]) == 0
     out = capsys.readouterr().out
     assert pareto_readme.BEGIN in out and "hard shadows" in out
+
+
+def test_unknown_soft_scene_is_a_config_error(exp):
+    from shadowlab.harness.figures import ExperimentConfigError
+
+    cfg = {"scenes": ["gate"], "resolution": [8, 8], "embree_rays": [2], "truth_rays": 2,
+           "options": {"sm_resolutions": [512], "biases": ["slope"],
+                       "soft_scenes": ["gat"]}}
+    with pytest.raises(ExperimentConfigError, match="soft_scenes.*gat"):
+        exp.run(cfg)
