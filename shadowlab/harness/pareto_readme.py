@@ -51,7 +51,8 @@ def render_block(data: dict, figure: str = "figures/pareto.png") -> str:
              "error: mismatching valid pixels against Embree shadow rays for hard "
              "shadows, mean absolute error against the Monte Carlo truth on the "
              "sphere-light variant for soft shadows). Regenerate: "
-             "`shadowlab bench --pareto`, then `python -m shadowlab.harness.pareto_readme`.",
+             f"`python -m shadowlab.cli bench --pareto --size {data.get('size', 'ci')}`, then "
+             "`python -m shadowlab.harness.pareto_readme`.",
              ""]
     for scene, rows in summary["front"].items():
         valid = summary["scenes"][scene]["valid_pixels"]
