@@ -55,6 +55,14 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, default=5, help="warm runs per method (median)")
     bench.add_argument("--out", default="bench.json", help="JSON results (default: bench.json)")
     bench.add_argument("--quiet", action="store_true")
+    bench.add_argument("--pareto", action="store_true",
+                       help="run the experiment `pareto` (every registered method, run time "
+                            "against error) at --size into --root/figures and print its "
+                            "Pareto fronts; --render-only prints them from the existing JSON")
+    bench.add_argument("--render-only", action="store_true",
+                       help="with --pareto: do not run, print the fronts of "
+                            "figures/pareto.json")
+    bench.add_argument("--root", default=".", help="with --pareto: repository root (default: .)")
 
     figures = sub.add_parser("figures", help="regenerate the figures of experiments/")
     figures.add_argument("--size", choices=("ci", "full"), default="ci")
@@ -127,10 +135,40 @@ def _cmd_scenes(args) -> int:
     return 0
 
 
+def _cmd_pareto(args) -> int:
+    """``bench --pareto``: the experiment ``pareto`` run (or only read) and its fronts
+    printed as the README quotes them."""
+    import json
+
+    from .config import ConfigError
+    from .harness.figures import run_experiment
+    from .harness.pareto_readme import render_block
+
+    if args.config or args.only or args.overrides:
+        raise ConfigError("bench --pareto runs the experiment config "
+                          "configs/experiments/pareto.<size>.toml; it takes no config, "
+                          "--only or --set")
+    root = Path(args.root)
+    path = root / "figures" / "pareto.json"
+    if not args.render_only:
+        run_experiment(root, "pareto", args.size)
+    elif not path.exists():
+        raise ConfigError(f"bench --pareto --render-only: {path} does not exist; run "
+                          "shadowlab bench --pareto first")
+    print(render_block(json.loads(path.read_text())))
+    print(f"wrote {root / 'figures'}/pareto.{{png,npz,json}}" if not args.render_only
+          else f"read {path}")
+    return 0
+
+
 def _cmd_bench(args) -> int:
     from .harness.bench import default_cases, format_bench, run_bench
     from .config import ConfigError, load_config
 
+    if args.render_only and not args.pareto:
+        raise ConfigError("bench --render-only needs --pareto")
+    if args.pareto:
+        return _cmd_pareto(args)
     if args.config:
         configs = [load_config(args.config, args.overrides)]
         names = [args.config]

@@ -27,13 +27,15 @@ from ..reference.raycast import render_gbuffer, soft_reference
 SOFT_CURVE_RAYS = (4, 16, 64)
 
 
-def _soft_curve(scene, gbuf, light, truth, eps, progress) -> list[dict]:
-    """Embree's soft reference at a few ray counts: seconds and error against ``truth``.
+def _soft_curve(scene, gbuf, light, truth, eps, progress,
+                rays_list=SOFT_CURVE_RAYS) -> list[dict]:
+    """Embree's soft reference at a few ray counts (``rays_list``): seconds and error
+    against ``truth`` (float [H, W]), one dict per ray count.
 
     Each point uses another seed than the truth, so its error is its own noise.
     """
     curve = []
-    for i, rays in enumerate(SOFT_CURVE_RAYS):
+    for i, rays in enumerate(rays_list):
         t0 = time.perf_counter()
         vis = soft_reference(scene, gbuf, light, rays_per_pixel=rays, seed=1000 + i,
                              shadow_eps=eps, progress=progress)

@@ -14,6 +14,8 @@ opens as a notebook) with
   not invariants: written to the JSON and printed, and enforced only where the config
   sets ``require_claims = true`` (the CI sizes, where they are known to hold, so a
   regression shows);
+- ``summary(arrays, cfg) -> dict`` (optional): JSON-ready results written to the JSON
+  under ``"summary"`` (e.g. a table that a document quotes);
 
 and configs ``configs/experiments/<name>.ci.toml`` and ``<name>.full.toml``. Outputs go to
 ``figures/<name>.png``, ``figures/<name>.npz`` (the arrays) and ``figures/<name>.json``
@@ -150,11 +152,13 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
     out = out or root / "figures"
     fig = module.plot(arrays)
     found = measure_claims(module, arrays, cfg)
+    meta = {"experiment": name, "size": size, "config": cfg, "run_seconds": seconds,
+            "claims": found, "provenance": io.provenance()}
+    if hasattr(module, "summary"):
+        meta["summary"] = module.summary(arrays, cfg)
     io.write_npz(out / f"{name}.npz", arrays)
     io.save_figure(fig, out / f"{name}.png")
-    io.write_json(out / f"{name}.json", {"experiment": name, "size": size, "config": cfg,
-                                         "run_seconds": seconds, "claims": found,
-                                         "provenance": io.provenance()})
+    io.write_json(out / f"{name}.json", meta)
     for c in found:
         print(f"  [{'holds' if c['holds'] else 'FAILS'}] {c['claim']}: {c['measured']}",
               file=sys.stderr)
