@@ -143,6 +143,14 @@ def check(arrays: dict, cfg: dict) -> None:
             assert np.all(arrays[f"{pre}_{name}_side_quads"]
                           >= arrays[f"{pre}_{name}_silhouette_edges"])
         assert np.all(arrays[f"{pre}_manifold_side_quads"] <= arrays[f"{pre}_zpass_side_quads"])
+    # the work claims are deterministic counts (the shadow-map comparison is a timing and
+    # is only reported): silhouettes need fewer sides than per-triangle volumes, ever
+    # fewer with tessellation; cuts between objects become open edges; GS2M halves sides
+    q = arrays["tri_zpass_side_quads"] / (3 * arrays["tri_triangles"])
+    assert np.all(q < 1) and np.all(np.diff(q) < 0), q
+    opened = arrays["obj_zpass_open_edges"]
+    assert np.all(np.diff(opened) >= 0) and opened[-1] > opened[0], opened
+    assert np.all(arrays["tri_manifold_side_quads"] < 0.6 * arrays["tri_zpass_side_quads"])
 
 
 def claims(arrays: dict, cfg: dict) -> list[dict]:
