@@ -7,7 +7,8 @@ anyway and compares its arrays with these (:func:`compare`):
 - booleans, integers and strings (masks, counters, labels): exactly;
 - other floats (means of counts, errors against a seeded reference): to
   ``RTOL``/``ATOL`` (NaN equals NaN), since XLA may round differently on another CPU;
-- timings: not at all. A timing array is one whose name contains ``seconds``, one
+- timings: not at all. A timing array is one whose name contains ``seconds`` or
+  ``_stage_``, one
   listed in :data:`TIMINGS` for its experiment, or one the experiment module lists
   in its own ``TIMING_ARRAYS`` tuple (derived ratios of times count as timings).
 
@@ -39,11 +40,13 @@ RTOL = 1e-5
 ATOL = 1e-9
 #: Timing arrays per experiment besides those named ``*seconds*``.
 TIMINGS: dict[str, tuple[str, ...]] = {
-    "clustered_stages": ("stages", "total", "ptsv_total", "embree"),
+    "clustered_stages": ("stages", "total", "ptsv_total", "embree", "full_storage_total",
+                         "no_ffc_total", "ptsv_build", "zfail_total", "zpass_total"),
+    "soft_tiled_error": ("raster_ns_per_pair",),
     "psv_animation": ("accel_worst", "accel_mean", "accel_best"),
     "psv_queries": ("acceleration",),
 }
-_TIMING_NAME = re.compile(r"seconds")
+_TIMING_NAME = re.compile(r"seconds|_stage_")     # *_stage_<name>: a stage's seconds
 
 
 def golden_dir(root: Path) -> Path:
