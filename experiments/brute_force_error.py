@@ -22,10 +22,9 @@ import statistics
 
 import numpy as np
 
-import shadowlab as sl
 from shadowlab.analysis.metrics import error_map
-from shadowlab.harness import References, evaluate
-from shadowlab.scene.procedural import default_view
+from shadowlab.harness import evaluate
+from shadowlab.harness.figures import scene_frames
 
 
 def run(cfg: dict) -> dict:
@@ -36,13 +35,7 @@ def run(cfg: dict) -> dict:
     out = {k: [] for k in ("reference", "valid", "error", "mismatches", "valid_pixels",
                            "triangles", "reference_seconds", "method_seconds",
                            "compile_seconds", "tests")}
-    for name in names:
-        params = dict(cfg.get("params", {}).get(name, {}))
-        scene = sl.load_scene(name, **params)
-        view = default_view(name, scene, **params)
-        camera = view.camera.replace(resolution=res)
-        gbuf = sl.render_gbuffer(scene, camera)
-        refs = References(scene, gbuf, view.light)
+    for name, scene, view, gbuf, refs in scene_frames(cfg, names, res):
         truth = refs.hard(repeats)
         ev = evaluate(scene, gbuf, view.light, "brute_force",
                       {"precision": cfg.get("precision", "float32")}, reference=refs,

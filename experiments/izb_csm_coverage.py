@@ -21,9 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-import shadowlab as sl
-from shadowlab.harness import References, evaluate
-from shadowlab.scene.procedural import default_view
+from shadowlab.harness import evaluate
+from shadowlab.harness.figures import scene_frames
 
 VARIANTS = (("circle", "slope"), ("corners", "slope"), ("circle", "corner"),
             ("corners", "corner"))
@@ -38,12 +37,7 @@ def run(cfg: dict) -> dict:
     opts = dict(cfg.get("options", {}))
     out = {k: [] for k in ("csm_seconds", "rate", "culled", "csm_texels", "false_shadows",
                            "samples", "triangles", "masks")}
-    for name in names:
-        params = dict(cfg.get("params", {}).get(name, {}))
-        scene = sl.load_scene(name, **params)
-        view = default_view(name, scene, **params)
-        gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=res))
-        refs = References(scene, gbuf, view.light)
+    for name, scene, view, gbuf, refs in scene_frames(cfg, names, res):
         rows = {k: [] for k in out}
         for cov, depth in VARIANTS:
             ev = evaluate(scene, gbuf, view.light, "izb",

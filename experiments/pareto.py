@@ -33,13 +33,11 @@ import statistics
 
 import numpy as np
 
-import shadowlab as sl
 from shadowlab.analysis.pareto import pareto_front
 from shadowlab.harness import References, evaluate
 from shadowlab.harness.bench import _soft_curve
-from shadowlab.harness.figures import ExperimentConfigError
+from shadowlab.harness.figures import ExperimentConfigError, scene_frames
 from shadowlab.methods import MethodKind, get, light_problem, names
-from shadowlab.scene.procedural import default_view
 from shadowlab.scene.view import PointLight, SphereLight
 
 #: arrays that depend on timings (which point is on a front), never compared as goldens
@@ -124,12 +122,7 @@ def run(cfg: dict) -> dict:
             "embree_soft_seconds", "embree_soft_mae")
     out = {k: [] for k in keys}
     front, soft_front = [], []
-    for name in names_:
-        params = dict(cfg.get("params", {}).get(name, {}))
-        scene = sl.load_scene(name, **params)
-        view = default_view(name, scene, **params)
-        gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=res))
-        refs = References(scene, gbuf, view.light)
+    for name, scene, view, gbuf, refs in scene_frames(cfg, names_, res):
         refs.hard(repeats + 1)
         row = {k: [] for k in ("seconds", "mismatches", "fraction", "unexplained")}
         for _, method, o in hard:

@@ -20,10 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-import shadowlab as sl
-from shadowlab.harness import References, evaluate, hard_metric
+from shadowlab.harness import evaluate, hard_metric
 from shadowlab.harness.claims import measured
-from shadowlab.scene.procedural import default_view
+from shadowlab.harness.figures import scene_frames
 
 METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
 
@@ -46,12 +45,7 @@ def run(cfg: dict) -> dict:
                            "mismatches", "unexplained", "overflow_pixels", "sweep_visited", "sweep_seconds",
                            "sweep_switches", "sweep_overflows", "triangles", "reference_seconds",
                            "lit_shadow_visits", "hybrid_differs")}
-    for name in names:
-        params = dict(cfg.get("params", {}).get(name, {}))
-        scene = sl.load_scene(name, **params)
-        view = default_view(name, scene, **params)
-        gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=res))
-        refs = References(scene, gbuf, view.light)
+    for name, scene, view, gbuf, refs in scene_frames(cfg, names, res):
         refs.hard(2)                           # the second pass is the timed, warm one
         out["reference_seconds"].append(refs.hard_seconds[1])
 

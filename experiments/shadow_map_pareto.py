@@ -24,9 +24,8 @@ import statistics
 
 import numpy as np
 
-import shadowlab as sl
-from shadowlab.harness import References, evaluate
-from shadowlab.scene.procedural import default_view
+from shadowlab.harness import evaluate
+from shadowlab.harness.figures import scene_frames
 
 
 def _configs(cfg: dict) -> list[tuple[str, dict]]:
@@ -48,12 +47,7 @@ def run(cfg: dict) -> dict:
     runs = _configs(cfg)
     out = {k: [] for k in ("seconds", "fraction", "false_lit", "false_shadow", "unexplained",
                            "embree_seconds")}
-    for name in names:
-        params = dict(cfg.get("params", {}).get(name, {}))
-        scene = sl.load_scene(name, **params)
-        view = default_view(name, scene, **params)
-        gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=res))
-        refs = References(scene, gbuf, view.light)
+    for name, scene, view, gbuf, refs in scene_frames(cfg, names, res):
         refs.hard(int(cfg.get("repeats", 2)))
         rows = {k: [] for k in out if k != "embree_seconds"}
         for method, opts in runs:

@@ -51,6 +51,31 @@ def jsonable(obj):
     return obj
 
 
+def write_text(path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
+
+
+#: Separates a generated document (docs/benchmarks.md, docs/claims.md) from the
+#: hand-written text below it, which regeneration keeps.
+KEEP_MARKER = "<!-- end of generated part: text below this line is kept on regeneration -->"
+
+
+def write_generated(path, generated: str) -> Path:
+    """Write ``generated``, then :data:`KEEP_MARKER`, then the text that an existing
+    ``path`` has below its marker (nothing for a new file), atomically."""
+    path = Path(path)
+    tail = "\n"
+    if path.exists():
+        old = path.read_text()
+        if KEEP_MARKER in old:
+            tail = old.split(KEEP_MARKER, 1)[1]
+    text = generated + "\n" + KEEP_MARKER + tail
+    return write_text(path, text if text.endswith("\n") else text + "\n")
+
+
 def write_json(path, data) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(jsonable(data), indent=2, sort_keys=False) + "\n")

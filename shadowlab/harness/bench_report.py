@@ -21,7 +21,9 @@ import json
 import math
 from pathlib import Path
 
-KEEP_MARKER = "<!-- end of generated part: text below this line is kept on regeneration -->"
+from ..core import io
+from ..core.io import KEEP_MARKER  # noqa: F401  (re-exported: the marker of this document)
+
 
 _TITLE = "# Benchmarks"
 _INTRO = (
@@ -149,29 +151,14 @@ def render(named_results: list[tuple[str, dict]]) -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
-def _kept_tail(out_path: Path) -> str:
-    if not out_path.exists():
-        return ""
-    text = out_path.read_text()
-    return text.split(KEEP_MARKER, 1)[1] if KEEP_MARKER in text else ""
-
-
 def write_benchmarks_md(bench_json_paths, out_path) -> Path:
     """Write ``out_path`` from the bench JSON files ``bench_json_paths`` (in that order).
 
     Each file gets a section labelled by its file name. The text below
     :data:`KEEP_MARKER` in an existing ``out_path`` is kept. Returns ``out_path``.
     """
-    from ..core import io
-
-    out_path = Path(out_path)
     named = [(Path(p).name, json.loads(Path(p).read_text())) for p in bench_json_paths]
-    text = render(named) + "\n" + KEEP_MARKER + _kept_tail(out_path)
-    if not text.endswith("\n"):
-        text += "\n"
-    with io.atomic_path(out_path) as tmp:
-        tmp.write_text(text)
-    return out_path
+    return io.write_generated(out_path, render(named))
 
 
 def main(argv=None) -> int:

@@ -92,6 +92,24 @@ def scene_view(cfg: dict, default_scene: str = "terrain"):
     return scene, view, gbuf
 
 
+def scene_frames(cfg: dict, names, resolution):
+    """One frame per procedural scene of an experiment: yields ``(name, scene, view,
+    gbuf, refs)`` for each of ``names``, with that scene's ``cfg["params"][name]``, its
+    default view, the G-buffer at ``resolution`` (width, height) and the frame's shared
+    :class:`~shadowlab.harness.evaluate.References`."""
+    from ..reference.raycast import render_gbuffer
+    from ..scene import load_scene
+    from ..scene.procedural import default_view
+    from .evaluate import References
+
+    for name in names:
+        params = dict(cfg.get("params", {}).get(name, {}))
+        scene = load_scene(name, **params)
+        view = default_view(name, scene, **params)
+        gbuf = render_gbuffer(scene, view.camera.replace(resolution=tuple(resolution)))
+        yield name, scene, view, gbuf, References(scene, gbuf, view.light)
+
+
 def discover(root: Path) -> dict[str, Path]:
     folder = root / "experiments"
     if not folder.is_dir():

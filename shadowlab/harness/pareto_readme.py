@@ -98,9 +98,7 @@ def update_readme(json_path, readme_path) -> Path:
     readme_path = Path(readme_path)
     data = json.loads(Path(json_path).read_text())
     text = replace_block(readme_path.read_text(), render_block(data))
-    with io.atomic_path(readme_path) as tmp:
-        tmp.write_text(text)
-    return readme_path
+    return io.write_text(readme_path, text)
 
 
 def main(argv=None) -> int:
