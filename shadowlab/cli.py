@@ -55,6 +55,9 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, default=5, help="warm runs per method (median)")
     bench.add_argument("--out", default="bench.json", help="JSON results (default: bench.json)")
     bench.add_argument("--quiet", action="store_true")
+    bench.add_argument("--note", default=None,
+                       help="a remark on the machine recorded in the JSON (its load is "
+                            "recorded anyway, and a busy machine is noted)")
     bench.add_argument("--pareto", action="store_true",
                        help="run the experiment `pareto` (every registered method, run time "
                             "against error) at --size into --root/figures and print its "
@@ -185,7 +188,7 @@ def _cmd_bench(args) -> int:
     if args.repeats < 1:
         raise ConfigError(f"bench --repeats must be >= 1, got {args.repeats}")
     results = run_bench(configs, repeats=args.repeats, out=args.out, progress=not args.quiet,
-                        names=names)
+                        names=names, note=args.note)
     print(format_bench(results))
     print(f"wrote {args.out}")
     return 0

@@ -162,6 +162,11 @@ def test_bench_writes_json(tmp_path, capsys):
     assert row["ratio_to_reference"] == pytest.approx(
         row["median_seconds"] / case["reference"]["median_seconds"])
     assert "compile_seconds" in row and "test" in row["stages"]
+    # dynamic: every per-scene cache dropped before each call (Embree rebuilds its BVH)
+    ref = case["reference"]
+    assert len(ref["dynamic_runs"]) == 1 and row["dynamic_runs"][0] > 0
+    assert row["dynamic_ratio"] == pytest.approx(
+        row["dynamic_median_seconds"] / ref["dynamic_median_seconds"])
 
 
 def test_default_run_with_every_method_skips_soft_methods_on_a_point_light(tmp_path, capsys):
@@ -246,3 +251,15 @@ def test_bench_bad_arguments_exit_2(tmp_path, capsys):
     assert main(["bench", "--size", "ci", "--repeats", "0", "--out", str(tmp_path / "b.json")]) == 2
     assert "--repeats must be >= 1" in capsys.readouterr().err
     assert not (tmp_path / "b.json").exists()
+
+
+def test_bench_records_the_machine_load_and_says_when_it_was_busy():
+    from shadowlab.harness.bench import BUSY_LOAD_PER_CORE, machine_record
+
+    idle = {"date_utc": "2026-01-01", "cpus": 4, "load_average": [0.1, 0.2, 0.3]}
+    busy = dict(idle, load_average=[4 * BUSY_LOAD_PER_CORE + 0.5, 1.0, 1.0])
+    rec = machine_record(idle, idle)
+    assert rec["load_average_before"] == [0.1, 0.2, 0.3] and "note" not in rec
+    assert "not idle" in machine_record(idle, busy)["note"]
+    assert machine_record(busy, idle, note="laptop").get("note").startswith("laptop; not idle")
+    assert machine_record(idle, idle, note="laptop")["note"] == "laptop"

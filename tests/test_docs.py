@@ -54,22 +54,32 @@ def test_bench_report_renders_hard_and_soft_cases():
     from shadowlab.harness import bench_report
 
     hard = {"stages": {"setup": 0.002, "test": 0.0405, "total": 0.0425}, "compile_seconds": 1.5,
-            "median_seconds": 0.0425, "ratio_to_reference": 4.25, "tests_per_second": 2.5e9,
+            "median_seconds": 0.0425, "ratio_to_reference": 4.25, "dynamic_ratio": 1.75,
+            "tests_per_second": 2.5e9,
             "error": {"valid_pixels": 100, "mismatches": 3}}
     soft = {"stages": {"eval": 0.25, "total": 0.25}, "compile_seconds": 0.25,
             "median_seconds": 0.25, "embree_seconds_at_equal_error": 0.75,
             "error": {"valid_pixels": 100, "mae": 0.0012, "rmse": 0.015, "max_error": 0.5,
-                      "ssim": 0.975}}
+                      "ssim": 0.975, "penumbra_pixels": 40, "penumbra_mae": 0.0125,
+                      "penumbra_rmse": 0.025, "penumbra_max_error": 0.5, "penumbra_ssim": 0.875},
+            "embree_seconds_at_equal": {"penumbra_mae": 0.125, "penumbra_rmse": None}}
     case = {"name": "c1", "scene": "s", "triangles": 1234, "resolution": [16, 8],
             "valid_pixels": 100, "reference": {"median_seconds": 0.01, "runs": [0.01]},
             "soft_reference": {"rays": 256, "curve": [{"rays": 4, "seconds": 0.5, "mae": 0.003}]},
             "methods": {"m_hard": hard, "m_soft": soft, "m_skip": {"skipped": "no area light"}}}
     text = bench_report.render([("x.json", {"repeats": 2, "cases": [case]})])
-    rows = {line.split("|")[1].strip(): line for line in text.splitlines() if line.startswith("| `")}
-    assert rows["`m_hard`"].split("|")[2:7] == [" 42.5 ", " 1.50 ", " 4.25 ", " 3 of 100 ", " 2.50 G "]
+    rows = {}                       # the first table row of each method
+    for line in text.splitlines():
+        if line.startswith("| `"):
+            rows.setdefault(line.split("|")[1].strip(), line)
+    assert rows["`m_hard`"].split("|")[2:8] == [" 42.5 ", " 1.50 ", " 4.25 ", " 1.75 ",
+                                                 " 3 of 100 ", " 2.50 G "]
     assert "setup 2.0, test 40.5" in rows["`m_hard`"]
     assert rows["`m_soft`"].split("|")[2:9] == [" 250.0 ", " 0.25 ", " 0.0012 ", " 0.0150 ",
                                                  " 0.500 ", " 0.9750 ", " 750.0 "]
+    penumbra = [line for line in text.splitlines() if line.startswith("| `m_soft` | 40 |")]
+    assert penumbra == ["| `m_soft` | 40 | 0.0125 (125.0) | 0.0250 (-) | 0.500 (-) "
+                        "| 0.8750 (-) |"]
     assert "skipped: no area light" in rows["`m_skip`"]
     assert "4 rays 500.0 ms MAE 0.0030" in text and "1,234 triangles, 16x8" in text
     assert "Machine load: not recorded" in text

@@ -40,6 +40,7 @@ import numpy as np
 
 from .capacity import bucket, pad
 from ..reference.raycast import GBuffer, facing_samples, shadow_epsilon
+from ..scene.caches import per_scene_cache
 from ..scene.mesh import Scene
 from ..scene.view import Camera, DirectionalLight, Light, PointLight, SphereLight, hard_light
 
@@ -89,7 +90,7 @@ def centre_point(camera: Camera, light: Light, centre: str = "camera") -> np.nda
     return np.asarray(camera.eye, np.float64)
 
 
-_LOCAL_SCENES: "weakref.WeakKeyDictionary[Scene, dict]" = weakref.WeakKeyDictionary()
+_LOCAL_SCENES: "weakref.WeakKeyDictionary[Scene, dict]" = per_scene_cache()
 _MAX_ORIGINS = 4        # local copies kept per scene (oldest dropped first)
 
 

@@ -6,6 +6,15 @@ the Embree shadow-ray pass ``repeats`` times, then evaluates each method with
 ``repeats`` warm calls), and reports median per-stage run times, the ratio of the
 method's median total to Embree's median, and the method's error against the
 reference its kind calls for. Results are saved as JSON for plots.
+
+Two ratios per hard method (docs/benchmarks.md, "Protocol"):
+
+- **static** (``ratio_to_reference``): Embree's BVH is built once, before timing, and
+  excluded; the method keeps what it caches across frames (adjacency, local scene), as a
+  static scene under a static light would;
+- **dynamic** (``dynamic_ratio``): every timed call starts with every per-scene cache
+  dropped (``scene.caches.drop``): Embree pays its BVH build plus the trace, the method
+  its whole frame (wall clock of ``compute_shadows``, including what it would cache).
 """
 
 from __future__ import annotations
@@ -18,10 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from ..core import io
+from ..scene import caches
 from ..analysis import compare_soft
 from .evaluate import References, evaluate
-from ..methods import MethodKind, get, light_problem
-from ..reference.raycast import render_gbuffer, soft_reference
+from ..methods import MethodKind, compute_shadows, get, light_problem
+from ..reference.raycast import reference_shadows, render_gbuffer, soft_reference
 
 # Rays per pixel of the Embree soft reference's run-time-vs-error curve.
 SOFT_CURVE_RAYS = (4, 16, 64)
@@ -94,12 +104,17 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
     refs = References(scene, gbuf, view.light, shadow_eps=eps,
                       soft_rays=config.reference.soft_rays, seed=config.reference.seed,
                       progress=progress)
-    truth = refs.hard(repeats)
-    ref_times = refs.hard_seconds
+    truth = refs.hard(repeats + 1)           # the first pass builds the BVH: not timed
+    ref_times = refs.hard_seconds[1:]
     ref_median = float(np.median(ref_times))
+    ref_dynamic = dynamic_seconds(
+        scene, lambda: reference_shadows(scene, gbuf, view.light, shadow_eps=eps), repeats)
     out = {"scene": scene.name, "triangles": scene.num_triangles,
            "resolution": list(view.camera.resolution), "valid_pixels": int(gbuf.valid.sum()),
            "reference": {"median_seconds": ref_median, "runs": ref_times,
+                         "first_seconds": refs.hard_seconds[0],
+                         "dynamic_median_seconds": float(np.median(ref_dynamic)),
+                         "dynamic_runs": ref_dynamic,
                          "rays_per_second": int(truth.size and (gbuf.valid.sum() / ref_median))},
            "methods": {}}
     runnable = {n: light_problem(n, view.light) for n in config.methods.names}
@@ -112,8 +127,11 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
         if runnable[name] is not None:
             out["methods"][name] = {"skipped": runnable[name]}
             continue
-        ev = evaluate(scene, gbuf, view.light, name, config.methods.options.get(name, {}),
-                      reference=refs, repeats=repeats)
+        options = dict(config.methods.options.get(name, {}))
+        ev = evaluate(scene, gbuf, view.light, name, options, reference=refs, repeats=repeats)
+        options.setdefault("shadow_eps", eps)
+        dynamic = dynamic_seconds(scene, lambda: compute_shadows(
+            scene, gbuf, view.light, method=name, **options), repeats)
         stages = {k: v for k, v in ev.timings.items() if not k.endswith("_compile")}
         compile_s = {k: v for k, v in ev.timings.items() if k.endswith("_compile")}
         counters = ev.result.scalar_counters()
@@ -121,6 +139,9 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
                "compile_seconds": ev.compile_seconds,
                "median_seconds": ev.seconds,
                "ratio_to_reference": ev.seconds / ref_median if ref_median > 0 else None,
+               "dynamic_median_seconds": float(np.median(dynamic)), "dynamic_runs": dynamic,
+               "dynamic_ratio": float(np.median(dynamic)) / out["reference"][
+                   "dynamic_median_seconds"],
                "counters": counters, "error": ev.error}
         if ev.kind is MethodKind.SOFT:
             curve = out["soft_reference"]["curve"]
@@ -128,10 +149,23 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
                 curve, row["error"]["mae"])
             row["embree_seconds_at_equal"] = embree_seconds_at_equal(curve, row["error"])
             row.pop("ratio_to_reference")
+            row.pop("dynamic_ratio")
         if "tests" in counters and ev.seconds > 0:
             row["tests_per_second"] = counters["tests"] / ev.seconds
         out["methods"][name] = row
     return out
+
+
+def dynamic_seconds(scene, call, repeats: int) -> list[float]:
+    """Wall-clock seconds of ``call()`` ``repeats`` times, each after every per-scene
+    cache of ``scene`` was dropped (a frame whose geometry has just changed)."""
+    times = []
+    for _ in range(max(repeats, 1)):
+        caches.drop(scene)
+        t0 = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - t0)
+    return times
 
 
 def case_repeats(name: str | None, repeats: int) -> int:
@@ -144,9 +178,47 @@ def case_repeats(name: str | None, repeats: int) -> int:
     return repeats
 
 
+#: 1-minute load average per core above which a run is marked as not idle
+BUSY_LOAD_PER_CORE = 0.25
+
+
+def machine_state() -> dict:
+    """Date (UTC), CPU count and load averages (1, 5, 15 min; None where the platform
+    has none) of this machine now."""
+    import datetime
+    import os
+
+    try:
+        load = [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        load = None
+    return {"date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d"),
+            "cpus": os.cpu_count(), "load_average": load}
+
+
+def machine_record(before: dict, after: dict, note: str | None = None) -> dict:
+    """The ``machine`` entry of a bench JSON: load before and after the run, and a note
+    that says when the machine was not idle (1-minute load above
+    ``BUSY_LOAD_PER_CORE`` per core at either end) besides the user's ``note``."""
+    rec = {"date_utc": before["date_utc"], "cpus": before["cpus"],
+           "load_average_before": before["load_average"],
+           "load_average_after": after["load_average"]}
+    notes = [note] if note else []
+    loads = [m["load_average"][0] for m in (before, after) if m["load_average"]]
+    if loads and max(loads) > BUSY_LOAD_PER_CORE * (before["cpus"] or 1):
+        notes.append(f"not idle: 1-minute load average up to {max(loads):.2f} on "
+                     f"{before['cpus']} cores, so times are slower than on an idle machine")
+    if notes:
+        rec["note"] = "; ".join(notes)
+    return rec
+
+
 def run_bench(configs: list, repeats: int = 5, out: str | Path | None = None,
-              progress: bool = True, names: list[str] | None = None) -> dict:
-    """Benchmark every config (named by ``names``); write ``out`` (JSON) if given."""
+              progress: bool = True, names: list[str] | None = None,
+              note: str | None = None) -> dict:
+    """Benchmark every config (named by ``names``); write ``out`` (JSON) if given.
+    The machine's load before and after is recorded (:func:`machine_record`)."""
+    before = machine_state()
     results = {"provenance": io.provenance(), "repeats": repeats, "cases": []}
     for i, config in enumerate(configs):
         name = names[i] if names else None
@@ -155,6 +227,7 @@ def run_bench(configs: list, repeats: int = 5, out: str | Path | None = None,
         case["name"] = name if names else config.source
         case["repeats"] = reps
         results["cases"].append(case)
+    results["machine"] = machine_record(before, machine_state(), note)
     if out:
         io.write_json(out, results)
     return results
@@ -162,14 +235,19 @@ def run_bench(configs: list, repeats: int = 5, out: str | Path | None = None,
 
 def format_bench(results: dict) -> str:
     lines = []
+    m = results.get("machine")
+    if m and m.get("note"):
+        lines.append(f"machine: {m['note']}")
     for case in results["cases"]:
         w, h = case["resolution"]
         ref = case["reference"]["median_seconds"]
         lines.append(f"[{case.get('name', '')}] {case['scene']}  {case['triangles']} triangles  {w}x{h}  "
                      f"Embree shadow rays: {1000 * ref:.1f} ms "
                      f"(median of {case.get('repeats', results['repeats'])})")
+        lines.append(f"  Embree dynamic (BVH build + trace): "
+                     f"{1000 * case['reference']['dynamic_median_seconds']:.1f} ms")
         lines.append(f"  {'method':<16} {'run ms':>9} {'compile s':>9} {'x Embree':>9} "
-                     f"{'mismatch':>9} {'Gtests/s':>9}  stages (ms)")
+                     f"{'dynamic x':>9} {'mismatch':>9} {'Gtests/s':>9}  stages (ms)")
         if "soft_reference" in case:
             curve = ", ".join(f"{c['rays']} rays {1000 * c['seconds']:.0f} ms MAE {c['mae']:.4f}"
                               for c in case["soft_reference"]["curve"])
@@ -202,6 +280,6 @@ def format_bench(results: dict) -> str:
             rate = m.get("tests_per_second")
             lines.append(f"  {name:<16} {1000 * m['median_seconds']:>9.1f} "
                          f"{m['compile_seconds']:>9.2f} {m['ratio_to_reference']:>9.2f} "
-                         f"{m['error']['mismatches']:>9} "
+                         f"{m['dynamic_ratio']:>9.2f} {m['error']['mismatches']:>9} "
                          f"{'-' if rate is None else f'{rate / 1e9:.2f}':>9}  {stages}")
     return "\n".join(lines)

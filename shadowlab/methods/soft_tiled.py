@@ -57,6 +57,7 @@ import numpy as np
 from ..core.numerics import opaque_zero
 from ..geometry.morton import encode, round_robin_layout
 from ..reference.raycast import shadow_epsilon
+from ..scene.caches import per_scene_cache
 from ..scene.view import SphereLight
 from ..structures.cones import blocker_cones, cones_in_frustum, pad_cones
 from ..structures.tile_lists import (
@@ -80,7 +81,7 @@ DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (
 
 # ------------------------------------------------------------------ clusters (per scene)
 
-_CLUSTER_CACHE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_CLUSTER_CACHE: "weakref.WeakKeyDictionary" = per_scene_cache()
 
 
 def build_clusters(scene, size: int) -> np.ndarray:

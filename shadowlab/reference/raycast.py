@@ -32,6 +32,7 @@ import weakref
 
 import numpy as np
 
+from ..scene.caches import per_scene_cache
 from ..scene.mesh import Scene
 from ..scene.view import Camera, Light, PointLight, SphereLight, hard_light
 
@@ -76,7 +77,7 @@ class GBuffer:
         return self.valid.shape
 
 
-_EMBREE_CACHE: "weakref.WeakKeyDictionary[Scene, dict]" = weakref.WeakKeyDictionary()
+_EMBREE_CACHE: "weakref.WeakKeyDictionary[Scene, dict]" = per_scene_cache()
 _MAX_ORIGINS = 4        # BVHs kept per scene (one per frame origin; oldest dropped)
 
 
