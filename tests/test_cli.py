@@ -263,3 +263,19 @@ def test_bench_records_the_machine_load_and_says_when_it_was_busy():
     assert "not idle" in machine_record(idle, busy)["note"]
     assert machine_record(busy, idle, note="laptop").get("note").startswith("laptop; not idle")
     assert machine_record(idle, idle, note="laptop")["note"] == "laptop"
+
+
+def test_run_prints_what_each_frame_skipped(tmp_path, capsys):
+    assert main(["run", "--set", "camera.resolution=[16,16]", "--set",
+                 'methods.names=["brute_force"]', "--set",
+                 'methods.options.brute_force.cull_casters="hull_averted"',
+                 "--out", str(tmp_path), "--quiet"]) == 0
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    frame = metrics["frames"][0]
+    sk = frame["skipped"]
+    samples = frame["methods"]["brute_force"]["counters"]["samples"]
+    assert sk["sky"] + sk["back_facing"] + samples == 16 * 16
+    culled = frame["methods"]["brute_force"]["counters"]["culled_casters"]
+    assert culled > 0 and frame["methods"]["brute_force"]["error"]["mismatches"] == 0
+    assert (f"frame 0: skipped {sk['sky']} sky and {sk['back_facing']} back-facing pixels; "
+            f"casters culled: brute_force {culled}") in capsys.readouterr().out

@@ -189,3 +189,25 @@ def test_bad_and_unknown_options_are_refused(method):
         assert registry.resolve_options(method, {option: spec.default})[option] == spec.default
     with pytest.raises(MethodError, match=f"'{method}': unknown option.*no_such_option"):
         sl.compute_shadows(scene, gbuf, light, method=method, no_such_option=1)
+
+
+#: float64 runs of the culling check (compiles are the cost; every method runs float32)
+CULL_FLOAT64 = ("brute_force", "silhouette", "psv", "izb")
+
+
+@pytest.mark.parametrize("method,precision", [
+    pytest.param(m, p, id=f"{m}-{p}") for m in METHODS
+    if registry.get(m).kind is MethodKind.EXACT
+    for p in ("float32", "float64") if p == "float32" or m in CULL_FLOAT64])
+def test_caster_culling_leaves_the_lit_mask_unchanged(method, precision):
+    """The shared cull_casters stage (hull and light-averted triangles of closed objects)
+    removes work, never a shadow: the lit mask is bit-identical to the unculled run's."""
+    scene, gbuf, light = frame("gate", False)
+    plain = runs(method, "gate", precision)[0]
+    culled = sl.compute_shadows(scene, gbuf, light, method=method, precision=precision,
+                                cull_casters="hull_averted")
+    np.testing.assert_array_equal(culled.lit, plain.lit)
+    c = culled.counters
+    assert c["culled_casters"] == c["culled_casters_hull"] + c["culled_casters_averted"]
+    assert c["culled_casters_averted"] > 0          # gate's parts are closed
+    assert "cull_casters" in culled.timings and "culled_casters" not in plain.counters

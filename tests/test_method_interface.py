@@ -90,6 +90,7 @@ def test_registry_stamps_name_options_and_total(frame):
         res = sl.compute_shadows(*frame, method=name, level=3)
         assert res.method == name
         assert res.options == {"precision": "float32", "shadow_eps": DEFAULT_SHADOW_EPS,
+                               "cull_casters": "off",
                                "level": 3}
         assert res.timings == {"work": 0.5, "work_compile": 2.0, "total": 0.5}
         assert registry.get(name).kind is MethodKind.APPROXIMATE

@@ -105,7 +105,8 @@ def local_scene(scene: Scene, origin: np.ndarray) -> Scene:
     out = cache.get(key)
     if out is None:
         out = Scene(scene.vertices - origin, scene.faces, scene.object_id,
-                    scene.object_names, scene.name)
+                    scene.object_names, scene.name,
+                    extent=None if scene.extent is None else scene.extent - origin)
         if len(cache) >= _MAX_ORIGINS:
             cache.pop(next(iter(cache)))
         cache[key] = out

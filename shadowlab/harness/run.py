@@ -25,7 +25,8 @@ from .evaluate import DEFAULT_REPEATS, EXPLAIN_LIMIT, References, evaluate
 from ..methods import MethodError, light_problem
 from ..reference.raycast import render_gbuffer
 
-__all__ = ["EXPLAIN_LIMIT", "RunOutput", "format_table", "run", "runnable_methods"]
+__all__ = ["EXPLAIN_LIMIT", "RunOutput", "format_skipped", "format_table", "run",
+           "runnable_methods", "skipped_receivers"]
 
 
 @dataclasses.dataclass
@@ -79,6 +80,36 @@ def runnable_methods(config, views) -> tuple[list[str], dict[str, str]]:
     return methods, skipped
 
 
+def skipped_receivers(gbuf, light) -> dict:
+    """Pixels every method skips in this frame: ``sky`` (no surface) and ``back_facing``
+    (a surface facing away from the light, unlit without a test)."""
+    from ..reference.raycast import facing_samples
+    from ..scene.view import hard_light
+
+    facing = len(facing_samples(gbuf, hard_light(light))[0])
+    valid = int(gbuf.valid.sum())
+    return {"sky": int(gbuf.valid.size - valid), "back_facing": valid - facing}
+
+
+def format_skipped(metrics: dict, limit: int = 8) -> list[str]:
+    """Per frame (the first ``limit``): the pixels skipped and, per method run with the
+    ``cull_casters`` option, the triangles the shared culling stage removed."""
+    lines = []
+    frames = metrics["frames"]
+    for f in frames[:limit]:
+        sk = f.get("skipped")
+        if sk is None:
+            continue
+        culled = [f"{name} {row['counters']['culled_casters']}"
+                  for name, row in f["methods"].items() if "culled_casters" in row["counters"]]
+        lines.append(f"frame {f['frame']}: skipped {sk['sky']} sky and {sk['back_facing']} "
+                     f"back-facing pixels" + (f"; casters culled: {', '.join(culled)}"
+                                              if culled else ""))
+    if len(frames) > limit:
+        lines.append(f"... {len(frames) - limit} more frames in metrics.json")
+    return lines
+
+
 def run(config, out_dir: str | Path | None = None, progress: bool = True,
         write: bool = True, repeats: int | None = None, warmup: int = 1) -> RunOutput:
     """Run ``config`` (a ``shadowlab.config.RunConfig``); write outputs to ``out_dir``
@@ -110,7 +141,7 @@ def run(config, out_dir: str | Path | None = None, progress: bool = True,
         arrays["reference"].append(truth)
         frame = {"frame": index, "valid_pixels": int(gbuf.valid.sum()),
                  "reference_lit": int(truth.sum()), "reference_seconds": refs.hard_seconds[0],
-                 "methods": {}}
+                 "skipped": skipped_receivers(gbuf, view.light), "methods": {}}
         for name in methods:
             bar.set_postfix_str(name)
             ev = evaluate(scene, gbuf, view.light, name, config.methods.options.get(name, {}),
@@ -195,6 +226,7 @@ def format_table(metrics: dict) -> str:
                      f"{s.get('tests', '-'):>14}")
     for name, reason in metrics.get("skipped", {}).items():
         lines.append(f"{name:<16} skipped: {reason}")
+    lines += format_skipped(metrics)
     timing = metrics.get("timing")
     if timing:
         lines.append(f"warm s: median of {timing['repeats']} warm call(s) per frame after "

@@ -46,6 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..geometry.caster_culling import CULL_SIDES, front_face_culled
 from ..engines.traversal import traverse
 from ..geometry.morton import decode
 from ..scene.view import hard_light
@@ -69,43 +70,6 @@ TOP_JOBS = 1024
 
 
 # --------------------------------------------------------------------------- setup
-
-CULL_SIDES = ("averted", "facing")
-
-
-def front_face_culled(scene, light_h: np.ndarray, side: str = "averted") -> np.ndarray:
-    """bool [T]: the triangles of closed objects that culling drops.
-
-    ``side="facing"`` (the papers' front-face culling): drop the triangles whose outward
-    side faces the light. For a closed, consistently oriented object, a blocked segment
-    from a point *outside* it to the light enters it through a triangle facing away from
-    the light, so those suffice. With the receiver bias the segment starts eps above the
-    receiver's tangent plane; when that start lies inside a closed object (the receiver
-    is within eps below it: contacts, overhangs), the segment only leaves it, through a
-    light-facing triangle, and the shadow is lost (measured: docs/clustered_ptsv.md).
-
-    ``side="averted"`` (default): drop the triangles facing away from the light. The last
-    crossing of a closed object's surface on a segment that ends at a light outside it
-    always leaves the object through a light-facing triangle, wherever the segment
-    starts, so this is exact with either bias.
-
-    The outward side comes from the sign of the object's signed volume; open objects keep
-    all their triangles (culling them would lose shadows).
-    """
-    if side not in CULL_SIDES:
-        raise ValueError(f"side must be one of {CULL_SIDES}")
-    report = scene.report()
-    closed = np.array([o.closed for o in report.objects] +
-                      [False] * (scene.num_objects - len(report.objects)))
-    tri = scene.triangles
-    v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
-    n = np.cross(v1 - v0, v2 - v0)
-    vol6 = np.einsum("ij,ij->i", v0, np.cross(v1, v2))
-    orient = np.sign(np.bincount(scene.object_id, weights=vol6, minlength=scene.num_objects))
-    orient = np.where(orient == 0, 1.0, orient)
-    facing = np.einsum("ij,ij->i", n, light_h[:3] - light_h[3] * v0) * orient[scene.object_id]
-    return closed[scene.object_id] & (facing > 0 if side == "facing" else facing < 0)
-
 
 # --------------------------------------------------------------------------- traversal
 

@@ -38,6 +38,8 @@ from ..scene.view import DirectionalLight, PointLight, SphereLight
 
 #: the preset every method with presets starts from: its options' own defaults
 DEFAULT_PRESET = "accurate"
+#: common options the registry applies before the method runs (not passed to it)
+REGISTRY_OPTIONS = ("cull_casters",)
 
 
 class MethodError(ValueError):
@@ -231,8 +233,10 @@ class MethodInfo:
 
     def call_options(self, resolved: dict) -> dict:
         """The resolved options the method function takes (``preset`` is resolved
-        already and not passed on)."""
-        return {k: v for k, v in resolved.items() if not (self.presets and k == "preset")}
+        already, and the registry applies ``REGISTRY_OPTIONS`` itself: neither is
+        passed on)."""
+        return {k: v for k, v in resolved.items()
+                if not (self.presets and k == "preset") and k not in REGISTRY_OPTIONS}
 
     def light_problem(self, light) -> str | None:
         """Why ``light`` cannot be used with this method, or None if it can."""

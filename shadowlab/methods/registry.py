@@ -12,12 +12,14 @@ kernel versions hang off the same entries (:func:`register_kernel`, :func:`run_k
 from __future__ import annotations
 
 import dataclasses
+import time
 from typing import Callable
 
 from ..core.counters import check as check_counters
 from ..core.frame import FRAME_CENTRES, localize
-from .interface import (DEFAULT_PRESET, DEFAULT_SHADOW_EPS, MethodError, MethodInfo,
-                        MethodKind, Option, OptionsModel, preset_option)
+from ..geometry import caster_culling
+from .interface import (DEFAULT_PRESET, DEFAULT_SHADOW_EPS, REGISTRY_OPTIONS, MethodError,
+                        MethodInfo, MethodKind, Option, OptionsModel, preset_option)
 
 COMMON_OPTIONS: dict[str, Option] = {
     "precision": Option("float32", "floating-point precision of the computation",
@@ -25,6 +27,11 @@ COMMON_OPTIONS: dict[str, Option] = {
     "shadow_eps": Option(DEFAULT_SHADOW_EPS, "cap-plane bias as a fraction of the scene "
                          "diagonal (the same offset the Embree reference uses)", kind=float,
                          minimum=0.0),
+    "cull_casters": Option("off", "drop the triangles that shadow no sample of the frame "
+                           "before the method runs (shared stage, exact): 'hull' outside "
+                           "the hull of the samples' shadow rays, 'hull_averted' also "
+                           "closed objects' triangles facing away from the light (hard "
+                           "shadows)", allowed=caster_culling.CULL_MODES),
 }
 
 _REGISTRY: dict[str, MethodInfo] = {}
@@ -189,9 +196,31 @@ def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
     info.check_light(light)
     opts = info.resolve_options(options)
     local = localize(scene, gbuf, light, info.frame)
-    result = info.fn(local.scene, local.gbuf, local.light, **info.call_options(opts))
+    casters, culled = _cull(info, local, opts["cull_casters"])
+    result = info.fn(casters, local.gbuf, local.light, **info.call_options(opts))
     check_result(info, result)
-    return stamp(result, method, opts)
+    return stamp(culled(result), method, opts)
+
+
+def _cull(info: MethodInfo, local, mode: str):
+    """The shared caster culling stage (``geometry.caster_culling``) on the frame-local
+    scene: (the scene the method gets, a function that adds the stage's counters and
+    time to a result; identity when ``mode`` is off)."""
+    if mode == "off":
+        return local.scene, lambda result: result
+    t0 = time.perf_counter()
+    cull = caster_culling.cull_casters(local.scene, local.gbuf, local.light, mode,
+                                       soft=info.soft)
+    casters = caster_culling.subset_scene(local.scene, cull.keep)
+    seconds = time.perf_counter() - t0
+
+    def add(result):
+        return dataclasses.replace(
+            result, counters={**result.counters, "culled_casters": cull.culled,
+                              "culled_casters_hull": cull.hull,
+                              "culled_casters_averted": cull.averted},
+            timings={**result.timings, "cull_casters": seconds})
+    return casters, add
 
 
 def run_kernel(scene, gbuf, light, method: str, **options):
@@ -203,8 +232,11 @@ def run_kernel(scene, gbuf, light, method: str, **options):
         with_kernel = ", ".join(n for n in names() if get(n).kernel is not None)
         raise MethodError(f"no kernel version of {method!r}; available: {with_kernel}")
     info.check_light(light)
+    options = dict(options)
+    mode = info.model.validate_one("cull_casters", options.pop("cull_casters", "off"))
     local = localize(scene, gbuf, light, info.frame)
-    result = info.kernel(local.scene, local.gbuf, local.light, **options)
+    casters, culled = _cull(info, local, mode)
+    result = culled(info.kernel(casters, local.gbuf, local.light, **options))
     check_counters(result.counters)
     return result
 

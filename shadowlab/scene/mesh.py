@@ -69,6 +69,9 @@ class Scene:
         object_id: int32 [m], the object each triangle belongs to.
         object_names: one name per object id.
         name: where the scene came from (a path or a generator name).
+        extent: float64 [2, 3] or None: bounds to report instead of those of the used
+            vertices. A subset of a scene (:meth:`subset`) keeps its parent's, so that
+            lengths relative to the scene diagonal (the shadow offset) do not change.
     """
 
     vertices: np.ndarray
@@ -76,6 +79,7 @@ class Scene:
     object_id: np.ndarray
     object_names: tuple[str, ...] = ("mesh",)
     name: str = "scene"
+    extent: np.ndarray | None = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self):
         v = np.ascontiguousarray(self.vertices, dtype=np.float64)
@@ -108,7 +112,12 @@ class Scene:
 
     @functools.cached_property
     def bounds(self) -> np.ndarray:
-        """float64 [2, 3]: the axis-aligned bounding box (min, max) of used vertices."""
+        """float64 [2, 3]: the axis-aligned bounding box (min, max) of used vertices
+        (``extent`` where given)."""
+        if self.extent is not None:
+            out = np.array(self.extent, np.float64).reshape(2, 3)
+            out.flags.writeable = False
+            return out
         used = self.vertices[np.unique(self.faces)]
         out = np.stack([used.min(axis=0), used.max(axis=0)])
         out.flags.writeable = False
@@ -137,6 +146,13 @@ class Scene:
         if key not in cache:
             cache[key] = build_adjacency(self, *key)
         return cache[key]
+
+    def subset(self, keep: np.ndarray, name: str | None = None) -> "Scene":
+        """The triangles where ``keep`` (bool [m]) is True, with the same vertex array,
+        object ids and names, and this scene's bounds as its ``extent``."""
+        keep = np.asarray(keep, bool)
+        return Scene(self.vertices, self.faces[keep], self.object_id[keep],
+                     self.object_names, name or self.name, extent=self.bounds)
 
     @staticmethod
     def concatenate(parts: list["Scene"], name: str = "scene") -> "Scene":

@@ -1,0 +1,111 @@
+"""The shared caster culling stage (geometry.caster_culling) against independent checks:
+a NumPy segment-triangle test for the hull, and the Embree references (hard and soft)
+computed with and without the culled triangles."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+import shadowlab as sl
+from shadowlab.core.frame import localize
+from shadowlab.geometry import caster_culling as cc
+from shadowlab.scene import procedural
+from shadowlab.scene.view import DirectionalLight, PointLight, SphereLight
+
+
+def _segment_hits(a, b, tri):
+    """bool [S, T]: segment a[s] -> b[s] meets triangle tri[t] (Moller-Trumbore, float64)."""
+    d = b - a
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    p = np.cross(d[:, None], e2[None])
+    det = np.einsum("stk,tk->st", p, e1)
+    inv = np.where(np.abs(det) > 1e-14, 1.0 / np.where(det == 0, 1, det), 0.0)
+    s = a[:, None] - tri[None, :, 0]
+    u = np.einsum("stk,stk->st", s, p) * inv
+    q = np.cross(s, e1[None])
+    v = np.einsum("sk,stk->st", d, q) * inv
+    t = np.einsum("stk,tk->st", q, e2) * inv
+    return (inv != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)
+
+
+def test_hull_planes_of_a_cube_are_its_six_faces():
+    corners = cc._box_corners(np.zeros(3), np.ones(3))
+    planes = cc.hull_planes(corners, tol=1e-9)
+    assert len(planes) == 6
+    assert np.all(corners @ planes[:, :3].T - planes[:, 3] <= 1e-9)
+    assert np.all(np.array([0.5, 0.5, 0.5]) @ planes[:, :3].T - planes[:, 3] < 0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), kind=st.sampled_from(["point", "directional", "sphere",
+                                                          "sun"]))
+def test_culled_triangles_meet_no_shadow_ray_of_any_point_of_the_box(seed, kind):
+    rng = np.random.default_rng(seed)
+    lo, hi = np.sort(rng.uniform(-1, 1, (2, 3)), axis=0)
+    lo[1] = hi[1] = 0.0                          # receivers on a plane (a flat box)
+    tri = rng.uniform(-3, 3, (300, 3, 3))
+    light = {"point": PointLight(rng.uniform(-2, 2, 3) + [0, 3, 0]),
+             "directional": DirectionalLight(rng.normal(size=3) - [0, 2, 0]),
+             "sphere": SphereLight(position=rng.uniform(-2, 2, 3) + [0, 3, 0], radius=0.5),
+             "sun": SphereLight(direction=rng.normal(size=3) - [0, 3, 0],
+                                angular_radius_deg=5.0)}[kind]
+    reach = 20.0
+    soft = kind in ("sphere", "sun")
+    planes = cc.hull_planes(cc.hull_points(lo, hi, light, reach, soft), tol=1e-9)
+    out = cc.outside_hull(tri, planes, 1e-9)
+    # shadow rays of random receivers to random points of the light (within reach)
+    p = rng.uniform(lo, hi, (400, 3))
+    if kind == "point":
+        ends = np.broadcast_to(light.position, p.shape)
+    elif kind == "directional":
+        ends = p - reach * light.direction
+    elif kind == "sphere":
+        w = rng.normal(size=p.shape)
+        ends = light.position + 0.5 * w / np.linalg.norm(w, axis=1, keepdims=True)
+    else:
+        towards = -light.direction
+        u, v = cc._orthonormal(towards)
+        r = np.tan(np.radians(5.0)) * np.sqrt(rng.uniform(0, 1, len(p)))
+        a = rng.uniform(0, 2 * np.pi, len(p))
+        dirs = towards + r[:, None] * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+        ends = p + reach * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    hits = _segment_hits(p, np.asarray(ends, float), tri)
+    assert not hits[:, out].any()
+    assert out.any() and hits[:, ~out].any()     # the test is not vacuous
+
+
+@pytest.mark.parametrize("name", ["city", "sphere_grid"])
+def test_references_do_not_change_without_the_culled_triangles(name):
+    """Embree's hard and soft references on the kept triangles equal those on the whole
+    scene: the culled ones shadow nothing."""
+    scene = procedural.make(name)
+    view = procedural.default_view(name, scene)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(32, 32)))
+    light = view.light
+    hard = sl.PointLight(light.position) if hasattr(light, "position") else light
+    area = sl.SphereLight(position=np.asarray(hard.position), radius=0.05 * scene.diagonal)
+    culled = 0
+    for lt, soft in ((hard, False), (area, True)):
+        local = localize(scene, gbuf, lt)
+        cull = cc.cull_casters(local.scene, local.gbuf, local.light,
+                               "hull" if soft else "hull_averted", soft=soft)
+        kept = cc.subset_scene(local.scene, cull.keep)
+        assert kept.diagonal == local.scene.diagonal
+        culled += cull.culled
+        if soft:
+            a = sl.soft_reference(local.scene, local.gbuf, local.light, rays_per_pixel=16)
+            b = sl.soft_reference(kept, local.gbuf, local.light, rays_per_pixel=16)
+        else:
+            a = sl.reference_shadows(local.scene, local.gbuf, local.light)
+            b = sl.reference_shadows(kept, local.gbuf, local.light)
+        np.testing.assert_array_equal(a, b)
+    assert culled > 0
+
+
+def test_off_keeps_everything_and_a_bad_mode_is_refused():
+    scene = procedural.make("gate")
+    view = procedural.default_view("gate", scene)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(8, 8)))
+    assert cc.cull_casters(scene, gbuf, view.light, "off").keep.all()
+    with pytest.raises(sl.methods.MethodError, match="cull_casters"):
+        sl.compute_shadows(scene, gbuf, view.light, method="brute_force", cull_casters="yes")
