@@ -350,7 +350,7 @@ class JaxEngine:
         order = jnp.asarray(pad(lists.order, bucket(len(lists.order))))
         shadow = jnp.zeros(points.shape[0], jnp.int8)
         tests = jnp.zeros(points.shape[0], jnp.int32)
-        cap = bucket(min(total, PAIR_CHUNK), minimum=1024)
+        cap = bucket(min(total, PAIR_CHUNK), minimum=min(1024, PAIR_CHUNK))
         for offset in range(0, total, cap):
             shadow, tests = _trace_pairs(frags.tri, frags.slot, first, pairs, offset, total,
                                          start, order, points, scale, planes, bound, shadow,
