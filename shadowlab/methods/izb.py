@@ -386,6 +386,14 @@ def receiver_points(samples, light_h: np.ndarray, eps: float) -> np.ndarray:
     return p + step[:, None] * l
 
 
+def _axis_depth(face, points: np.ndarray) -> np.ndarray:
+    """float64 [N]: depth of world ``points`` [N, 3] along ``face``'s view axis, as
+    ``LightFace.project`` gives it (to the last bits: no matrix product, whose threaded
+    BLAS call dominated the CSM stage under load; the CSM margin covers the rounding)."""
+    v = face.view[2]
+    return -(points[:, 0] * v[0] + points[:, 1] * v[1] + points[:, 2] * v[2] + v[3])
+
+
 def light_area(setup: lr.FaceSetup) -> np.ndarray:
     """float64 [T]: projected area (texels) of the triangles in front of the light on a
     face (|D| / (2 w0 w1 w2)); 0 for the others."""
@@ -412,8 +420,7 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
     delta_q = np.empty(samples.count)
     for f in np.unique(face):
         sel = face == f
-        _, dq = cam.faces[f].project(q[sel])
-        delta_q[sel] = lr.face_depth(cam.faces[f], dq)
+        delta_q[sel] = lr.face_depth(cam.faces[f], _axis_depth(cam.faces[f], q[sel]))
     keys, inv = keys_inv
     select = [ok_tri & s.ok & s.front & (light_area(s) >= min_area) for s in setups]
     s_cap = bucket(samples.count)
