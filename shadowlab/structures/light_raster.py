@@ -37,7 +37,9 @@ exact before any array is allocated; nothing is truncated.
 Distances to edges are measured in texels. A margin ``tau`` (texels) makes the inner
 test stricter and the outer test looser; ``rounding_margin`` sizes it from the data.
 Everything here is float64 NumPy set-up plus elementwise evaluation that runs in NumPy or
-under ``jax.jit`` (``xp``) in the dtype of its inputs.
+under ``jax.jit`` (``xp``) in the dtype of its inputs. The methods rasterize with
+:func:`raster`: the exact count in NumPy (:func:`row_segments`), then one jit-compiled
+fill at power-of-two capacities (float64, :func:`x64`).
 """
 
 from __future__ import annotations
