@@ -112,8 +112,9 @@ class WarpEngine:
         return jizb.Lists(order.numpy()[:n].astype(np.int64), start, n_len,
                           maxd.numpy()[:k], maxm.numpy()[:k])
 
-    def trace(self, tri, slot, lo, lists: jizb.Lists, points, scale, planes, bound, count):
+    def trace(self, frags, lists: jizb.Lists, points, scale, planes, bound, count):
         dev = init(self.device)
+        tri, slot, lo = frags.compact("tri", "slot", "lo")
         pts = np.asarray(points)
         ftype = wp.float64 if pts.dtype == np.float64 else wp.float32
 

@@ -31,6 +31,7 @@ cull). ``verify`` re-tests every culled sample against every caster (counter
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -58,12 +59,9 @@ PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "
 PAIR_CHUNK = 1 << 20
 
 
-@jax.jit
-def _pair_test(points, scale, planes, bound, node, tri, count):
-    """int8 [S]: 1 where some pair (node, tri) [P] of the first ``count`` shadows the node.
-
-    The per-sample test of ``brute_force`` (the same expressions) on gathered pairs.
-    """
+def _shadowed(points, scale, planes, bound, node, tri):
+    """bool [P]: the per-sample test of ``brute_force`` (the same expressions) on the
+    pairs (node [P], tri [P])."""
     p = points[node]
     px, py, pz = p[:, 0], p[:, 1], p[:, 2]
     pl = planes[tri]
@@ -71,9 +69,45 @@ def _pair_test(points, scale, planes, bound, node, tri, count):
     e1 = px * pl[:, 4] + py * pl[:, 5] + pz * pl[:, 6] + pl[:, 7]
     e2 = px * pl[:, 8] + py * pl[:, 9] + pz * pl[:, 10] + pl[:, 11]
     cap = px * pl[:, 12] + py * pl[:, 13] + pz * pl[:, 14] + pl[:, 15]
-    hit = (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap * scale[node] < bound[tri])
+    return (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap * scale[node] < bound[tri])
+
+
+@jax.jit
+def _pair_test(points, scale, planes, bound, node, tri, count):
+    """int8 [S]: 1 where some pair (node, tri) [P] of the first ``count`` shadows the node."""
+    hit = _shadowed(points, scale, planes, bound, node, tri)
     hit &= jnp.arange(node.shape[0]) < count
     return jnp.zeros(points.shape[0], jnp.int8).at[node].max(hit.astype(jnp.int8))
+
+
+@jax.jit
+def _trace_count(slot, covered, lo, limit, length):
+    """Depth culling of the outer fragments (``limit`` [K]: the farthest node's delta plus
+    its margin): (kept bool [C], pairs per fragment [C], traced, depth-culled, pairs)."""
+    keep = covered & (lo < limit[slot])
+    pairs = jnp.where(keep, length[slot], 0)
+    return keep, pairs, keep.sum(), (covered & ~keep).sum(), pairs.sum()
+
+
+@jax.jit
+def _exclusive_sum(x):
+    return lr.running_sum(x) - x
+
+
+@functools.partial(jax.jit, static_argnames=("capacity",))
+def _trace_pairs(tri, slot, first, pairs, offset, total, start, order, points, scale, planes,
+                 bound, shadow, tests, *, capacity):
+    """Pairs ``offset + arange(capacity)`` (of ``total``) of the fragments' runs (the run of
+    fragment f starts at ``first[f]`` with ``pairs[f]`` nodes): every node of f's list
+    against f's triangle; ``shadow`` (int8 [S]) and ``tests`` (int32 [S]) accumulated."""
+    j = offset + jnp.arange(capacity, dtype=first.dtype)
+    frag = lr.segment_owner(first, capacity, offset)
+    valid = j < total
+    pos = jnp.where(valid, start[slot[frag]] + j - first[frag], 0)
+    node = order[pos]
+    hit = _shadowed(points, scale, planes, bound, node, tri[frag]) & valid
+    return (shadow.at[node].max(hit.astype(jnp.int8)),
+            tests.at[node].add(valid.astype(jnp.int32)))
 
 
 def pair_shadows(points, scale, planes, bound, node: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -88,13 +122,6 @@ def pair_shadows(points, scale, planes, bound, node: np.ndarray, tri: np.ndarray
                          jnp.asarray(pad(tri[start:start + n], cap)), n)
         out |= np.asarray(hit, bool)
     return out
-
-
-def expand(counts: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(owner [N], index [N]): for each owner i, ``starts[i] + arange(counts[i])``."""
-    owner = np.repeat(np.arange(len(counts)), counts)
-    first = np.repeat(np.cumsum(counts) - counts, counts)
-    return owner, np.repeat(starts, counts) + np.arange(len(owner)) - first
 
 
 def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
@@ -190,9 +217,10 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
         with timer.stage("light_setup"):
             cam = fit_camera(scene, samples, light, resolution, projection)
             r = cam.resolution[0]
-            face, uv, key, delta_p = lr.project_points(cam, samples.position)
+            face, uv, key, delta_p, depth_p = lr.project_points(cam, samples.position, True)
+            keys_all, inv_all = np.unique(key, return_inverse=True)
             setups = [lr.setup_face(f, scene.triangles) for f in cam.faces]
-            tw = float(lr.texel_world_size(cam, samples.position).min())
+            tw = float(lr.texel_world_size(cam, face=face, depth=depth_p).min())
             extent = np.concatenate([scene.triangles.reshape(-1, 3), samples.position])
             tau = coverage_margin + lr.rounding_margin(dtype, extent, tw)
             # depth margin (delta units per sample): rounding of world coordinates
@@ -203,34 +231,32 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
         csm_texels = 0
         with timer.stage("csm"):
             if prepass == "csm":
-                c_cam, c_setups, c_face, c_key, c_delta, c_tau, c_m = (
-                    cam, setups, face, key, delta_p, tau, m_delta)
+                c_cam, c_setups, c_face, c_keys, c_delta, c_tau, c_m = (
+                    cam, setups, face, (keys_all, inv_all), delta_p, tau, m_delta)
                 if csm_scale > 1:   # a finer grid over the same extent
                     c_cam = fit_camera(scene, samples, light, resolution * csm_scale,
                                        projection, padding=csm_scale)
                     c_face, _, c_key, c_delta = lr.project_points(c_cam, samples.position)
+                    c_keys = np.unique(c_key, return_inverse=True)
                     c_setups = [lr.setup_face(f, scene.triangles) for f in c_cam.faces]
                     c_tau = coverage_margin + lr.rounding_margin(dtype, extent, tw / csm_scale)
                     c_m = _delta_slope(c_cam, c_delta) * m_world
-                culled, csm_texels = _csm(c_cam, c_setups, samples, light_h, c_face, c_key,
+                culled, csm_texels = _csm(c_cam, c_setups, samples, light_h, c_face, c_keys,
                                           c_delta, c_m, ok_tri, coverage, csm_depth, c_tau,
                                           cap_bias(scene, shadow_eps), csm_min_area)
 
         with timer.stage("build"):
-            lkeys = np.unique(key[~culled])
-            slot = np.where(culled, -1, np.searchsorted(lkeys, key))
+            occupied = np.bincount(inv_all[~culled], minlength=len(keys_all)) > 0
+            lkeys = keys_all[occupied]
+            slot = np.where(culled, -1, (np.cumsum(occupied) - 1)[inv_all])
             lists = engine.build(slot, delta_p, m_delta, len(lkeys))
 
         with timer.stage("trace"):
             select = [ok_tri & s.ok for s in setups]
-            ftri, fslot = lr.candidates(setups, lkeys, r, select=select)
-            fkey = lkeys[fslot]
-            edges, norms, dplane, col, row = lr.fragment_arrays(setups, ftri, fkey, r)
-            over = lr.coverage(edges, norms, col, row, "outer", tau=tau)
-            lo, _, _ = lr.depth_range(dplane, col, row)
-            shadow, tests_per, traced, depth_culled = engine.trace(
-                ftri[over], fslot[over], lo[over], lists, points, scale_j, planes, bound_j,
-                s_count)
+            with lr.x64():
+                frags = lr.raster(setups, lkeys, r, "outer", tau=tau, select=select)
+                shadow, tests_per, traced, depth_culled = engine.trace(
+                    frags, lists, points, scale_j, planes, bound_j, s_count)
             # valid casters with a light-space determinant of exactly 0 on a face: test
             # them against every node of that face (nothing rasterizes them)
             order = lists.order
@@ -293,34 +319,44 @@ class JaxEngine:
     @staticmethod
     def build(slot: np.ndarray, delta: np.ndarray, margin: np.ndarray, k: int) -> Lists:
         """Lists of the samples with ``slot`` [S] >= 0 (their texel's list), ``delta`` [S]
-        and depth ``margin`` [S] (float64), ``k`` lists."""
+        and depth ``margin`` [S] (float64), ``k`` lists, none of them empty."""
         nodes = np.flatnonzero(slot >= 0)
         order = nodes[np.argsort(slot[nodes], kind="stable")]
         length = np.bincount(slot[order], minlength=k).astype(np.int64)
         start = np.cumsum(length) - length
-        owner = np.repeat(np.arange(k), length)
-        maxd = np.full(k, -np.inf)
-        np.maximum.at(maxd, owner, delta[order])
-        maxm = np.zeros(k)
-        np.maximum.at(maxm, owner, margin[order])
-        return Lists(order, start, length, maxd, maxm)
+        if len(order) == 0:
+            return Lists(order, start, length, np.full(k, -np.inf), np.zeros(k))
+        return Lists(order, start, length, np.maximum.reduceat(delta[order], start),
+                     np.maximum.reduceat(margin[order], start))
 
     @staticmethod
-    def trace(tri, slot, lo, lists: Lists, points, scale, planes, bound, count):
-        """Fragments (triangle ``tri`` [F], list ``slot`` [F], smallest delta ``lo`` [F]):
-        depth culling against the farthest node, then every node of the list tested.
+    def trace(frags: lr.Fragments, lists: Lists, points, scale, planes, bound, count):
+        """Outer fragments ``frags`` (their smallest delta ``lo``): depth culling against
+        the farthest node, then every node of the list tested. Count, then fill: the
+        exact number of pairs sizes the pair kernel's chunks. Runs inside ``lr.x64()``.
 
         Returns:
             shadow bool [count], tests per sample int64 [count], traced fragments,
             depth-culled fragments.
         """
-        keep = lo < lists.maxd[slot] + lists.maxm[slot]
-        ttri, tslot = tri[keep], slot[keep]
-        owner, pos = expand(lists.length[tslot], lists.start[tslot])
-        node, ptri = lists.order[pos], ttri[owner]
-        shadow = pair_shadows(points, scale, planes, bound, node, ptri)[:count]
-        return (shadow, np.bincount(node, minlength=count).astype(np.int64),
-                int(keep.sum()), int((~keep).sum()))
+        k_cap = bucket(len(lists.length))
+        length = jnp.asarray(pad(lists.length, k_cap))
+        keep, pairs, traced, culled, total = _trace_count(
+            frags.slot, frags.covered, frags.lo,
+            jnp.asarray(pad(lists.maxd + lists.maxm, k_cap)), length)
+        total = int(total)
+        first = _exclusive_sum(pairs)
+        start = jnp.asarray(pad(lists.start, k_cap))
+        order = jnp.asarray(pad(lists.order, bucket(len(lists.order))))
+        shadow = jnp.zeros(points.shape[0], jnp.int8)
+        tests = jnp.zeros(points.shape[0], jnp.int32)
+        cap = bucket(min(total, PAIR_CHUNK), minimum=min(1024, PAIR_CHUNK))
+        for offset in range(0, total, cap):
+            shadow, tests = _trace_pairs(frags.tri, frags.slot, first, pairs, offset, total,
+                                         start, order, points, scale, planes, bound, shadow,
+                                         tests, capacity=cap)
+        return (np.asarray(shadow[:count]).astype(bool),
+                np.asarray(tests[:count]).astype(np.int64), int(traced), int(culled))
 
 
 ENGINE = JaxEngine()
@@ -350,6 +386,14 @@ def receiver_points(samples, light_h: np.ndarray, eps: float) -> np.ndarray:
     return p + step[:, None] * l
 
 
+def _axis_depth(face, points: np.ndarray) -> np.ndarray:
+    """float64 [N]: depth of world ``points`` [N, 3] along ``face``'s view axis, as
+    ``LightFace.project`` gives it (to the last bits: no matrix product, whose threaded
+    BLAS call dominated the CSM stage under load; the CSM margin covers the rounding)."""
+    v = face.view[2]
+    return -(points[:, 0] * v[0] + points[:, 1] * v[1] + points[:, 2] * v[2] + v[3])
+
+
 def light_area(setup: lr.FaceSetup) -> np.ndarray:
     """float64 [T]: projected area (texels) of the triangles in front of the light on a
     face (|D| / (2 w0 w1 w2)); 0 for the others."""
@@ -358,33 +402,35 @@ def light_area(setup: lr.FaceSetup) -> np.ndarray:
     return np.where(front, setup.absdet / (2 * np.prod(w, axis=1)), 0.0)
 
 
-def _csm(cam, setups, samples, light_h, face, key, delta_p, m_delta, ok_tri, test, depth_mode,
-         tau, eps, min_area=0.0):
-    """bool [S] samples culled by the conservative shadow map, and its full texels."""
+@functools.partial(jax.jit, static_argnames=("slope", "size"))
+def _csm_cull(slot, full, hi, centre, gslope, inv, delta_q, margin, *, slope, size):
+    """bool [S] samples culled by the CSM of the inner fragments (``full`` [C]) over
+    ``size`` texels (sample texel ``inv`` [S]), and the number of texels with a depth."""
+    cons = jnp.maximum(centre + gslope, hi) if slope else hi   # slope >= hi exactly; rounding
+    csm = jnp.full(size, jnp.inf).at[slot].min(jnp.where(full, cons, jnp.inf))
+    return delta_q > csm[inv] + margin, jnp.isfinite(csm).sum()
+
+
+def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri, test,
+         depth_mode, tau, eps, min_area=0.0):
+    """bool [S] samples culled by the conservative shadow map, and its full texels.
+    ``keys_inv``: the sorted texel keys [K] of the samples and each sample's index [S]."""
     r = cam.resolution[0]
     q = receiver_points(samples, light_h, eps)
     delta_q = np.empty(samples.count)
     for f in np.unique(face):
         sel = face == f
-        _, dq = cam.faces[f].project(q[sel])
-        delta_q[sel] = lr.face_depth(cam.faces[f], dq)
-    keys, inv = np.unique(key, return_inverse=True)
+        delta_q[sel] = lr.face_depth(cam.faces[f], _axis_depth(cam.faces[f], q[sel]))
+    keys, inv = keys_inv
     select = [ok_tri & s.ok & s.front & (light_area(s) >= min_area) for s in setups]
-    ftri, fslot = lr.candidates(setups, keys, r, select=select)
-    fkey = keys[fslot]
-    edges, norms, dplane, col, row = lr.fragment_arrays(setups, ftri, fkey, r)
-    full = lr.coverage(edges, norms, col, row, "inner", test, tau=tau)
-    dplane, col, row, fslot = dplane[full], col[full], row[full], fslot[full]
-    _, hi, centre = lr.depth_range(dplane, col, row)
-    if depth_mode == "slope":
-        cons = centre + np.maximum(np.abs(dplane[:, 0]), np.abs(dplane[:, 1]))
-        cons = np.maximum(cons, hi)   # equal or larger in exact arithmetic; guards rounding
-    else:
-        cons = hi
-    csm = np.full(len(keys), np.inf)
-    np.minimum.at(csm, fslot, cons)
-    culled = delta_q > csm[inv] + m_delta
-    return culled, int(np.isfinite(csm).sum())
+    s_cap = bucket(samples.count)
+    with lr.x64():
+        fr = lr.raster(setups, keys, r, "inner", test, tau, select)
+        culled, texels = _csm_cull(
+            fr.slot, fr.covered, fr.hi, fr.centre, fr.slope, jnp.asarray(pad(inv, s_cap)),
+            jnp.asarray(pad(delta_q, s_cap, fill=-np.inf)), jnp.asarray(pad(m_delta, s_cap)),
+            slope=depth_mode == "slope", size=bucket(len(keys)))
+        return np.asarray(culled)[: samples.count], int(texels)
 
 
 def _verify(culled, samples, points, scale, planes, bound, num_triangles, dtype) -> int:

@@ -112,14 +112,10 @@ def shadow_map(scene, gbuf, light, *, precision, shadow_eps, resolution, project
             setups = [lr.setup_face(f, scene.triangles) for f in cam.faces]
             ok = np.any(np.stack([s.ok for s in setups]), axis=0)
         with timer.stage("raster"):
-            tri, slot = lr.candidates(setups, keys, r)
-            fkey = keys[slot]
-            edges, norms, dplane, col, row = lr.fragment_arrays(setups, tri, fkey, r)
-            cov = lr.coverage(edges, norms, col, row, "standard")
-            tri, slot, dplane, col, row = tri[cov], slot[cov], dplane[cov], col[cov], row[cov]
-            _, _, depth_c = lr.depth_range(dplane, col, row)
+            with lr.x64():
+                tri, slot, slope, depth_c = lr.raster(setups, keys, r, "standard").compact(
+                    "tri", "slot", "slope", "centre")
             if bias == "slope":
-                slope = np.maximum(np.abs(dplane[:, 0]), np.abs(dplane[:, 1]))
                 ulp = np.spacing(np.abs(depth_c).astype(np.float32)).astype(np.float64)
                 depth_c = depth_c + bias_factor * slope + bias_units * ulp
             dmap = np.full(len(keys), np.inf)

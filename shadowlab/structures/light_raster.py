@@ -37,15 +37,22 @@ exact before any array is allocated; nothing is truncated.
 Distances to edges are measured in texels. A margin ``tau`` (texels) makes the inner
 test stricter and the outer test looser; ``rounding_margin`` sizes it from the data.
 Everything here is float64 NumPy set-up plus elementwise evaluation that runs in NumPy or
-under ``jax.jit`` (``xp``) in the dtype of its inputs.
+under ``jax.jit`` (``xp``) in the dtype of its inputs. The methods rasterize with
+:func:`raster`: the exact count in NumPy (:func:`row_segments`), then one jit-compiled
+fill at power-of-two capacities (float64, :func:`x64`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+
+from ..core.capacity import bucket, pad
 
 from ..scene.light_camera import LightCamera, LightFace
 
@@ -189,19 +196,19 @@ def texel_keys(face: np.ndarray, uv: np.ndarray, resolution: int) -> np.ndarray:
     return (np.asarray(face, dtype=np.int64) * r + ij[:, 1]) * r + ij[:, 0]
 
 
-def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
-               select: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(triangle, key index) pairs whose texel is in a triangle's box.
+def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
+                 select: list[np.ndarray] | None = None):
+    """The counting pass of the rasterizer: per (triangle, row of its box) on each face,
+    the run of ``keys`` inside the row's box (found by binary search).
 
-    Args:
-        setups: one :class:`FaceSetup` per face (face f's keys start at f R R).
-        keys: int64 [K] sorted unique texel keys to rasterize over.
-        select: optional per-face bool [T] triangles to draw (default all).
+    Args: as :func:`candidates`.
     Returns:
-        tri int64 [F], slot int64 [F] (index into ``keys``), sorted by triangle, face.
+        face int64 [M], tri int64 [M], first int64 [M] (index into ``keys``), count
+        int64 [M]; the fragments are, in order, ``first[m] + arange(count[m])`` of each
+        segment m (sorted by face, triangle, row), ``count.sum()`` of them.
     """
     r = int(resolution)
-    tris, slots = [], []
+    out = []
     for f, st in enumerate(setups):
         b = st.bbox
         use = (b[:, 0] <= b[:, 1]) & (b[:, 2] <= b[:, 3])
@@ -215,12 +222,124 @@ def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
         base = (f * r + row) * r
         lo = np.searchsorted(keys, base + b[rt, 0], side="left")
         hi = np.searchsorted(keys, base + b[rt, 1], side="right")
-        n = hi - lo
-        tt = np.repeat(rt, n)
-        first = np.repeat(np.cumsum(n) - n, n)
-        slots.append(np.repeat(lo, n) + np.arange(len(tt)) - first)
-        tris.append(tt)
-    return np.concatenate(tris).astype(np.int64), np.concatenate(slots).astype(np.int64)
+        keep = hi > lo
+        out.append((np.full(int(keep.sum()), f), rt[keep], lo[keep], (hi - lo)[keep]))
+    return tuple(np.concatenate([o[i] for o in out]).astype(np.int64) for i in range(4))
+
+
+def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
+               select: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(triangle, key index) pairs whose texel is in a triangle's box (NumPy).
+
+    Args:
+        setups: one :class:`FaceSetup` per face (face f's keys start at f R R).
+        keys: int64 [K] sorted unique texel keys to rasterize over.
+        select: optional per-face bool [T] triangles to draw (default all).
+    Returns:
+        tri int64 [F], slot int64 [F] (index into ``keys``), sorted by face, triangle.
+    """
+    _, tri, first, count = row_segments(setups, keys, resolution, select)
+    tt = np.repeat(tri, count)
+    start = np.repeat(np.cumsum(count) - count, count)
+    return tt, np.repeat(first, count) + np.arange(len(tt)) - start
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Fragments:
+    """Fragments of a :func:`raster` call, as JAX arrays padded to a static capacity.
+
+    Attributes:
+        tri, slot: int64 [C] triangle and index into the raster's keys;
+        covered: bool [C] the coverage test passed (False on the padding);
+        lo, hi, centre: float64 [C] the depth plane's min, max and centre over the texel;
+        slope: float64 [C] max(|d delta / du|, |d delta / dv|) (per texel);
+        candidates: the exact number of candidate fragments (the rest is padding).
+    """
+
+    tri: jax.Array
+    slot: jax.Array
+    covered: jax.Array
+    lo: jax.Array
+    hi: jax.Array
+    centre: jax.Array
+    slope: jax.Array
+    candidates: int
+
+    def compact(self, *names: str) -> list[np.ndarray]:
+        """NumPy arrays ``names`` of the covered fragments, in candidate order."""
+        keep = np.flatnonzero(np.asarray(self.covered))
+        return [np.asarray(getattr(self, n))[keep] for n in names]
+
+
+def x64():
+    """The context the raster's float64 JAX bookkeeping runs in (whatever the working
+    precision): its arrays are float64 and int64."""
+    return jax.enable_x64(True)
+
+
+def segment_owner(first, capacity: int, offset=0):
+    """int [capacity]: for positions ``offset + arange(capacity)`` of consecutive runs
+    starting at the non-decreasing ``first`` [M] (traced), the last run starting at or
+    before each position (a scatter of the starts and a running sum; a run of length 0
+    is followed by one with the same start, so it never owns a position)."""
+    at = jnp.clip(first - offset, 0, None)
+    marks = jnp.zeros(capacity, jnp.int32).at[at].add(1, mode="drop")
+    return jnp.maximum(running_sum(marks) - 1, 0)
+
+
+def running_sum(x):
+    """Inclusive prefix sum [N] of ``x`` [N] (traced): an associative scan, several times
+    faster than ``jnp.cumsum`` (a reduce-window) under XLA on the CPU."""
+    return jax.lax.associative_scan(jnp.add, x)
+
+
+@functools.partial(jax.jit, static_argnames=("capacity", "resolution", "mode", "inner_test",
+                                             "t_cap"))
+def _raster_kernel(ft, first, count, keys, unit, depth, tau, *, capacity, resolution, mode,
+                   inner_test, t_cap):
+    """The fill pass: fragment i of the segments' runs, its texel, coverage and depth
+    range (see :class:`Fragments`)."""
+    start = running_sum(count) - count
+    i = jnp.arange(capacity, dtype=start.dtype)
+    seg = segment_owner(start, capacity)
+    valid = i < start[-1] + count[-1]
+    slot = jnp.where(valid, first[seg] + i - start[seg], 0)
+    ftv = ft[seg]
+    key = keys[slot]
+    col, row = key % resolution, (key // resolution) % resolution
+    plane = depth[ftv]
+    cov = coverage(unit[ftv], None, col, row, mode, inner_test, tau, xp=jnp) & valid
+    lo, hi, centre = depth_range(plane, col, row, xp=jnp)
+    slope = jnp.maximum(jnp.abs(plane[:, 0]), jnp.abs(plane[:, 1]))
+    return ftv % t_cap, slot, cov, lo, hi, centre, slope
+
+
+def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str,
+           inner_test: str = "corners", tau: float = 0.0,
+           select: list[np.ndarray] | None = None) -> Fragments:
+    """Rasterize over sorted texel ``keys`` [K] in ``mode`` (float64, jit-compiled).
+
+    Two phases: the exact candidate count (:func:`row_segments`, NumPy), then the fill,
+    coverage and depth range of every candidate under ``jax.jit`` at a static capacity
+    (powers of two: the candidates, the segments, the keys and the triangles are padded,
+    so shapes repeat across frames; nothing is truncated). Call inside :func:`x64`.
+    """
+    face, tri, first, count = row_segments(setups, keys, resolution, select)
+    t_cap = bucket(max(len(s.unit) for s in setups), minimum=16)
+    unit = np.zeros((len(setups) * t_cap, 3, 3))
+    depth = np.zeros((len(setups) * t_cap, 3))
+    for f, s in enumerate(setups):
+        unit[f * t_cap: f * t_cap + len(s.unit)] = s.unit
+        depth[f * t_cap: f * t_cap + len(s.depth)] = s.depth
+    total = int(count.sum())
+    m_cap = bucket(len(count), minimum=256)
+    out = _raster_kernel(
+        jnp.asarray(pad(face * t_cap + tri, m_cap)), jnp.asarray(pad(first, m_cap)),
+        jnp.asarray(pad(count, m_cap)), jnp.asarray(pad(keys, bucket(len(keys)))),
+        jnp.asarray(unit), jnp.asarray(depth), jnp.asarray(tau, jnp.float64),
+        capacity=bucket(total), resolution=int(resolution), mode=mode, inner_test=inner_test,
+        t_cap=t_cap)
+    return Fragments(*out, candidates=total)
 
 
 def _distance(values, norms, xp):
@@ -330,40 +449,30 @@ def rounding_margin(dtype, points: np.ndarray, texel_world: float) -> float:
     return 64.0 * float(np.finfo(dtype).eps) * scale / max(texel_world, 1e-300)
 
 
-def project_points(camera: LightCamera, points: np.ndarray):
+def project_points(camera: LightCamera, points: np.ndarray, with_depth: bool = False):
     """Light-space coordinates of world ``points`` [N, 3] (float64).
 
     Returns:
         face int32 [N], uv float64 [N, 2] (texel coordinates), key int64 [N] (the
-        texel, :func:`texel_keys`), delta float64 [N] (the face's depth convention).
+        texel, :func:`texel_keys`), delta float64 [N] (the face's depth convention), and
+        with ``with_depth`` the depth float64 [N] along the face's axis (world units).
     """
     face, uv, depth = camera.to_texels(points)
     delta = np.empty(len(face))
     for f in np.unique(face):
         sel = face == f
         delta[sel] = face_depth(camera.faces[f], depth[sel])
-    return face, uv, texel_keys(face, uv, camera.resolution[0]), delta
+    out = face, uv, texel_keys(face, uv, camera.resolution[0]), delta
+    return out + (depth,) if with_depth else out
 
 
-def texel_world_size(camera: LightCamera, points: np.ndarray) -> np.ndarray:
+def texel_world_size(camera: LightCamera, points: np.ndarray | None = None, *,
+                     face: np.ndarray | None = None,
+                     depth: np.ndarray | None = None) -> np.ndarray:
     """float64 [N]: world size of one texel at ``points`` [N, 3] (the texel side times
-    the depth on perspective faces)."""
-    face, _, depth = camera.to_texels(points)
+    the depth on perspective faces), or at points already projected (``face``, ``depth``
+    of :meth:`LightCamera.to_texels`)."""
+    if points is not None:
+        face, _, depth = camera.to_texels(points)
     size = np.array([f.texel_size for f in camera.faces])[face]
     return size if camera.kind == "orthographic" else size * depth
-
-
-def fragment_arrays(setups: list[FaceSetup], tri: np.ndarray, key: np.ndarray, resolution: int,
-                    dtype=np.float64):
-    """Per-fragment unit edge rows [F, 3, 3], None (for ``coverage``'s ``norms``), depth
-    planes [F, 3] (``dtype``), and column, row int64 [F] of fragments (triangle ``tri``,
-    texel ``key``)."""
-    r = int(resolution)
-    if len(setups) == 1:
-        unit, depth = setups[0].unit[tri], setups[0].depth[tri]
-    else:
-        face = key // (r * r)
-        unit = np.stack([s.unit for s in setups])[face, tri]
-        depth = np.stack([s.depth for s in setups])[face, tri]
-    return (unit.astype(dtype, copy=False), None, depth.astype(dtype, copy=False), key % r,
-            (key // r) % r)
