@@ -1,6 +1,8 @@
 """The command line: run, methods, scenes, bench, errors, atomic outputs."""
 
 import json
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -169,13 +171,24 @@ def test_bench_writes_json(tmp_path, capsys):
         row["dynamic_median_seconds"] / ref["dynamic_median_seconds"])
 
 
+# The default scene (gate) made small: the scene and resolution of the pareto experiment's
+# CI-size gate frame (configs/experiments/pareto.ci.toml), so both compile the same
+# programs once per test session. The default config itself (gate, every method) is
+# checked in test_config.py and test_resources.py.
+_PARETO = tomllib.loads((Path(__file__).resolve().parent.parent / "configs" / "experiments"
+                         / "pareto.ci.toml").read_text())
+SMALL_GATE = ["--set", f"camera.resolution={_PARETO['resolution']}",
+              *(a for k, v in _PARETO["params"]["gate"].items()
+                for a in ("--set", f"scene.params.{k}={v}"))]
+
+
 def test_default_run_with_every_method_skips_soft_methods_on_a_point_light(tmp_path, capsys):
     """The README's first command runs every registered method; none may break it."""
     from shadowlab import methods
 
-    assert main(["run", "--set", "camera.resolution=[24,24]", "--out", str(tmp_path),
-                 "--quiet"]) == 0
+    assert main(["run", *SMALL_GATE, "--out", str(tmp_path), "--quiet"]) == 0
     metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["config"]["scene"]["source"] == "gate"
     soft = {n for n in methods.names() if methods.get(n).soft}
     assert set(metrics["summary"]) == set(methods.names()) - soft
     assert set(metrics["skipped"]) == soft
