@@ -124,3 +124,26 @@ def test_claims_are_recorded_and_enforced_only_where_required(tmp_path, required
     meta = json.loads((out / "toy.json").read_text())       # written either way
     assert [c["holds"] for c in meta["claims"]] == [True, False]
     assert meta["claims"][1]["measured"] == "3"
+
+
+def test_a_failing_timing_claim_is_recorded_but_never_enforced(tmp_path):
+    """require_claims enforces counts, never run times (claims.TIMED)."""
+    import json
+
+    from shadowlab.harness.claims import get
+    from shadowlab.harness.figures import ClaimFailed
+
+    assert get("s14.fig8.explicit_faster").timed and not get("s14.fig6.gain2x").timed
+    toy = _TOY.replace('''{"claim": "x sums to 4",''', '''{"id": "s14.fig8.explicit_faster",
+             "claim": "x sums to 4",''')
+    (tmp_path / "experiments").mkdir()
+    (tmp_path / "configs" / "experiments").mkdir(parents=True)
+    (tmp_path / "experiments" / "toy.py").write_text(toy)
+    (tmp_path / "configs" / "experiments" / "toy.ci.toml").write_text("require_claims = true\n")
+    run_experiment(tmp_path, "toy", "ci", out=tmp_path / "figures")       # no ClaimFailed
+    meta = json.loads((tmp_path / "figures" / "toy.json").read_text())
+    assert meta["claims"][1]["holds"] is False
+    (tmp_path / "experiments" / "toy.py").write_text(toy.replace("s14.fig8.explicit_faster",
+                                                                  "s14.fig6.gain2x"))
+    with pytest.raises(ClaimFailed, match="x sums to 4"):
+        run_experiment(tmp_path, "toy", "ci", out=tmp_path / "figures")

@@ -20,6 +20,11 @@ Fields of :class:`Claim`:
   is known); an experiment's own ``"note"`` on a measurement takes precedence;
 - ``tested_by``: a unit test that checks the claim on a constructed case (not a
   measurement on a scene; shown beside the measurement).
+
+Claims whose measurement is a run time or a ratio of run times are listed in
+:data:`TIMED`: they are measured and recorded like the others, but a config's
+``require_claims = true`` never enforces them (performance lives in benchmarks, never in
+tests: on a loaded machine a timing claim would flip).
 """
 
 from __future__ import annotations
@@ -47,6 +52,21 @@ class Claim:
     explain: str = ""
     tested_by: str = ""
 
+    @property
+    def timed(self) -> bool:
+        """Measured by run times (recorded, never enforced by ``require_claims``)."""
+        return self.id in TIMED
+
+
+#: ids of the claims measured by run times (see the module docstring)
+TIMED = frozenset({
+    "s14.fig1.order", "s14.fig5.faster", "s14.fig5.build_stable", "s14.fig5.ffc",
+    "s14.fig8.explicit_faster", "s14.fig8.culling_faster", "s14.fig8.two_pass_spikes",
+    "s14.sec2_3.build_like_ptsv", "s14.fig9.build_2x", "s14.fig9.traverse_scales",
+    "s14.sec3.compact_5pct", "m16.fig8.hybrid_fastest", "m16.fig8.accel",
+    "m16.fig7.build_overhead", "m16.fig7.zpass_duality", "m16.fig9.stack_size",
+    "p13.manifold_faster", "t18.fig1.speedup", "t18.fig3.stages", "k23.grid_31xn",
+})
 
 _GPU = "absolute GPU times; a CPU/XLA run cannot reproduce them, only the ratios"
 
