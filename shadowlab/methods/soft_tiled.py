@@ -76,7 +76,7 @@ from ..core.result import ShadowResult
 
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
 DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)
-MIN_FLUSH_LANES = 32    # compact flush: the smallest wave (lanes); waves shrink 4x
+MIN_FLUSH_LANES = 128   # compact flush: the smallest wave (lanes); waves halve
 
 
 # ------------------------------------------------------------------ clusters (per scene)
@@ -363,7 +363,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             Every lane pops one recorded pair per step. Without ``compact`` all lanes of
             the batch run until the lane with the most pairs is done. With it, the lanes
             are sorted by their number of pairs (descending) and run in waves on static,
-            shrinking prefixes ``caps`` of that order: wave i runs the first caps[i]
+            prefixes ``caps`` of that order, halving: wave i runs the first caps[i]
             lanes until every lane past caps[i + 1] is done (the (caps[i + 1] + 1)-th
             largest count), the last wave until the largest. No lane stops before its
             pairs are done, and a lane's steps do not depend on the others (the grid is
@@ -388,7 +388,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 order = jnp.argsort(-todo, stable=True)
                 data, state = jax.tree_util.tree_map(lambda a: a[..., order], (data, state))
                 ranked = todo[order]
-                caps = [c for c in (n >> (2 * i) for i in range(8)) if c >= MIN_FLUSH_LANES]
+                caps = [c for c in (n >> i for i in range(16)) if c >= MIN_FLUSH_LANES]
                 ends = [ranked[c] for c in caps[1:]] + [ranked[0]]
             else:
                 caps, ends = [n], [jnp.max(todo)]
