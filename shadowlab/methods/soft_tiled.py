@@ -39,8 +39,9 @@ D - R^2 / D along that direction; exactly what ``raycast.soft_reference`` sample
 Vectorized JAX: active tiles, sorted by list length, run in batches of 32 (one compiled
 shape), vectorized over (tiles x 256 pixels). With ``defer`` (default) a batch first runs
 only the per-pixel quick reject over its lists, recording the passing entries as bits,
-then rasterizes just those (max over the batch's pixels, per round of 256 entries); a
-pixel whose grid is empty stops. See docs/soft_tiled.md.
+then rasterizes just those (per round of 256 entries; with ``compact`` each step runs only
+on the lanes with pairs left, in waves of halving static size); a pixel whose grid is
+empty stops. See docs/soft_tiled.md.
 """
 
 from __future__ import annotations
