@@ -77,7 +77,7 @@ from ..core.result import ShadowResult
 
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
 DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)
-MIN_FLUSH_LANES = 128   # compact flush: the smallest wave (lanes); waves halve
+MIN_FLUSH_LANES = 512   # compact flush: the smallest wave (lanes); waves halve
 
 
 # ------------------------------------------------------------------ clusters (per scene)
