@@ -233,6 +233,7 @@ def test_bench_soft_method_reports_embree_time_at_equal_error(tmp_path):
     assert "embree_seconds_at_equal_error" in row
     assert {"penumbra_mae", "penumbra_ssim"} <= set(row["error"])
     assert set(row["embree_seconds_at_equal"]) >= {"mae", "penumbra_mae", "penumbra_ssim"}
+    assert set(row["embree_seconds_at_equal_lower_bound"]) <= set(row["embree_seconds_at_equal"])
 
 
 def test_embree_time_at_equal_error_interpolates_log_log():
@@ -245,7 +246,7 @@ def test_embree_time_at_equal_error_interpolates_log_log():
 
 
 def test_embree_time_at_equal_error_on_each_metric():
-    from shadowlab.harness.bench import embree_seconds_at_equal
+    from shadowlab.harness.bench import embree_seconds_at_equal, embree_seconds_beyond
 
     curve = [{"mae": 0.04, "ssim": 0.9, "penumbra_mae": 0.4, "seconds": 1.0},
              {"mae": 0.01, "ssim": 0.99, "penumbra_mae": 0.1, "seconds": 16.0}]
@@ -255,6 +256,9 @@ def test_embree_time_at_equal_error_on_each_metric():
     assert at["ssim"] == pytest.approx(1.0)          # SSIM is matched as 1 - SSIM
     assert at["penumbra_mae"] is None                 # better than the whole curve
     assert set(at) == {"mae", "ssim", "penumbra_mae"}
+    # where the method beats the whole curve: at least the most accurate point's time
+    beyond = embree_seconds_beyond(curve, {"mae": 0.02, "ssim": 0.995, "penumbra_mae": 0.01})
+    assert beyond == {"ssim": 16.0, "penumbra_mae": 16.0}
 
 
 def test_bench_bad_arguments_exit_2(tmp_path, capsys):

@@ -176,6 +176,14 @@ def test_deferred_rasterization_is_bit_identical(name, sphere, projection):
     stopped = e["tests_per_pixel"] < d["tests_per_pixel"]
     assert (deferred.lit[stopped] == 0).all()
     assert np.array_equal(e["rasterized_per_pixel"][~stopped], d["rasterized_per_pixel"][~stopped])
+    # the compacted flush (the default) against every lane of the batch running until the
+    # longest lane is done: the same pairs rasterized, so the same grids and counters
+    wide = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", compact=False, **common)
+    assert deferred.options["compact"] and np.array_equal(wide.lit, deferred.lit)
+    w = wide.counters
+    for key in set(w) - {"raster_lanes"}:
+        assert np.array_equal(np.asarray(w[key]), np.asarray(e[key])), key
+    assert w["raster_lanes"] > 2 * e["raster_lanes"]
 
 
 def test_sphere_light_large_errors_only_in_overflowing_tiles():

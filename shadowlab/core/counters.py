@@ -149,9 +149,9 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("csm_culled_per_pixel", "map", "1 where the prepass culled the pixel's sample"),
     Counter("csm_false_shadows", "int", "CSM: culled samples that the exact test over every "
             "caster finds lit; must be 0 (-1 when the check is off)"),
-    Counter("raster_lanes", "int", "pixel lanes the vectorized rasterizer executed: steps x "
-            "pixels of each batch (deferred: flush steps; rasterized_triangles of them did "
-            "work)"),
+    Counter("raster_lanes", "int", "pixel lanes the vectorized rasterizer executed: the sum "
+            "over its steps of the lanes each step ran on (deferred with compact: the flush "
+            "waves' lanes; rasterized_triangles of them did work)"),
     Counter("cas_failures", "int", "reference kernels: compare-and-swap operations that lost a "
             "race (the slot was taken by another thread first); 0 in a serial schedule"),
 ]}

@@ -39,8 +39,9 @@ D - R^2 / D along that direction; exactly what ``raycast.soft_reference`` sample
 Vectorized JAX: active tiles, sorted by list length, run in batches of 32 (one compiled
 shape), vectorized over (tiles x 256 pixels). With ``defer`` (default) a batch first runs
 only the per-pixel quick reject over its lists, recording the passing entries as bits,
-then rasterizes just those (max over the batch's pixels, per round of 256 entries); a
-pixel whose grid is empty stops. See docs/soft_tiled.md.
+then rasterizes just those (per round of 256 entries; with ``compact`` each step runs only
+on the lanes with pairs left, in waves of halving static size); a pixel whose grid is
+empty stops. See docs/soft_tiled.md.
 """
 
 from __future__ import annotations
@@ -77,6 +78,7 @@ from ..core.result import ShadowResult
 
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
 DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)
+MIN_FLUSH_LANES = 512   # compact flush: the smallest wave (lanes); waves halve
 
 
 # ------------------------------------------------------------------ clusters (per scene)
@@ -162,7 +164,7 @@ def frustum_planes(camera, zmin: float, zmax: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=None)
 def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, horizon: bool,
-                 mode: str, defer: bool = True):
+                 mode: str, defer: bool = True, compact: bool = True):
     g = sd.grid(grid_name)
     disk = [np.uint32(wd) for wd in g.disk_mask()]
     defer = defer and mode == "bitmask"
@@ -176,8 +178,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         [9, Nt, 256] (rows e1, e2, w), nrm [3, Nt, 256] (light frame), s, zl [Nt, 256],
         id, half [Nt, 256] int32, rel [Nt, 256] bool. tri [9, Tg] vertex coordinates,
         tri_id [Tg]; entries/entry_half [L]: the flat tile lists (tile t's at
-        offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256] and the
-        counts of tests, rasterized and near-clamp triangles [G, 256] (int32).
+        offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256], the
+        counts of tests, rasterized and near-clamp triangles [G, 256] (int32) and the
+        rasterizer lanes executed (int32 []: steps x lanes, summed over the steps).
         """
         pos = [pix["pos"][i][tiles] for i in range(3)]              # [G, 256] each
         fr = [pix["frame"][i][tiles] for i in range(9)]
@@ -202,8 +205,13 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         zero = jnp.zeros(shape, jnp.int32)
         tri_rows = tri.T                                                   # [Tg, 9]
 
-        def light_frame(vx):
-            """Vertices (9 arrays, broadcastable to [G, 256]) -> d: 3 light-frame tuples."""
+        # the pixels' own data; the flush runs on lanes gathered from it (same keys)
+        px_all = {"pos": pos, "fr": fr, "nrm": nrm, "s": s, "zl": zl}
+
+        def light_frame(vx, px):
+            """Vertices (9 arrays, broadcastable to the lanes of ``px``) -> d: 3
+            light-frame tuples."""
+            pos, fr = px["pos"], px["fr"]
             d = []
             for v in range(3):
                 dv = [vx[3 * v + i] - pos[i] for i in range(3)]
@@ -211,8 +219,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                                + dv[2] * fr[3 * c + 2] for c in range(3)))
             return d
 
-        def projected(d):
-            q = [sd.project_paper_list(d[v][0], d[v][1], d[v][2], s, zr) for v in range(3)]
+        def projected(d, px):
+            q = [sd.project_paper_list(d[v][0], d[v][1], d[v][2], px["s"], zr)
+                 for v in range(3)]
             return [q[v][0] for v in range(3)], [q[v][1] for v in range(3)]
 
         def quick_reject(d, qx, qy):
@@ -238,24 +247,25 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                     | (z[2] * s < sd.PAPER_CLAMP))
             return quick, near
 
-        def keep_words(d, qx, qy, mask):
+        def keep_words(d, qx, qy, mask, px):
             """The words to AND into the grid (every bit kept where ~mask)."""
             if projection == "paper":
                 edges, ok = sd.triangle_edges_list(qx, qy, zr)
             else:
-                edges, ok = sd.homogeneous_edges_list(d, s, nrm, eps, zl if sphere else None,
-                                                      zr)
+                edges, ok = sd.homogeneous_edges_list(d, px["s"], px["nrm"], eps,
+                                                      px["zl"] if sphere else None, zr)
             return sd.pack_list(sd.polygon_keep_list(edges, g, mask & ok, zr), g)
 
-        def raster_pair(e, mask):
-            """Keep words of triangle e [G, 256] (per pixel) where mask. Both paths go
-            through here with per-pixel vertex gathers, so they compile to the same
-            arithmetic: XLA contracts a * b + c to an FMA within a fusion, and a
-            differently fused copy can round a cell centre on an edge the other way."""
-            v = tri_rows[e]                         # [G, 256, 9]: one gather of 9 floats
-            d = light_frame([v[..., i] for i in range(9)])
-            qx, qy = projected(d)
-            return keep_words(d, qx, qy, mask)
+        def raster_pair(e, mask, px):
+            """Keep words of triangle e (per lane: [G, 256], or [n] lanes of the flush)
+            where mask; ``px``: the lanes' pixel data. Every path goes through here with
+            per-lane vertex gathers, so they compile to the same arithmetic: XLA
+            contracts a * b + c to an FMA within a fusion, and a differently fused copy
+            can round a cell centre on an edge the other way."""
+            v = tri_rows[e]                         # [..., 9]: one gather of 9 floats
+            d = light_frame([v[..., i] for i in range(9)], px)
+            qx, qy = projected(d, px)
+            return keep_words(d, qx, qy, mask, px)
 
         def chunk_entries(j):
             """The chunk's list entries: live [G, K], triangle [G, K], half bits [G, K]."""
@@ -268,8 +278,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             """Entry k of the chunk on every pixel: geometry, act and use [G, 256]."""
             in_half = ((eh[:, k, None] >> phalf) & 1) == 1                  # [G, 256]
             act = live[:, k, None] & rel & in_half & (vid[:, k, None] != pid) & alive
-            d = light_frame([tri[i][ent[:, k], None] for i in range(9)])
-            qx, qy = projected(d)
+            d = light_frame([tri[i][ent[:, k], None] for i in range(9)], px_all)
+            qx, qy = projected(d, px_all)
             quick, near = quick_reject(d, qx, qy)
             return d, qx, qy, act, act & quick, near
 
@@ -298,7 +308,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                         area = sd.overlap_area(pts) / math.pi
                         blocked = blocked + jnp.where(use, area, 0.0).astype(dtype)
                         continue
-                    keep = raster_pair(jnp.broadcast_to(ent[:, k, None], shape), use)
+                    keep = raster_pair(jnp.broadcast_to(ent[:, k, None], shape), use, px_all)
                     words = [wd & kp for wd, kp in zip(words, keep)]
                 return (words, blocked) + counts
 
@@ -309,8 +319,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             else:
                 vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
             # every step rasterized on every lane of the batch
-            steps = (trips * chunk).astype(jnp.int32)
-            return jnp.where(rel, vis, 0.0), tests, rast, clamp, steps
+            lanes = (trips * chunk * rel.size).astype(jnp.int32)
+            return jnp.where(rel, vis, 0.0), tests, rast, clamp, lanes
 
         # Deferred: a first pass over the list only runs the per-pixel quick reject and
         # records the entries passing it as bits (bit b of word w: list slot 32 w + b of
@@ -350,30 +360,69 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             return base, tests, rast, clamp, bits, summary, alive
 
         def flush(words, base, bits, summary):
-            """Rasterize every recorded pair of the round (base: its first word)."""
+            """Rasterize every recorded pair of the round (base: its first word).
+
+            Every lane pops one recorded pair per step. Without ``compact`` all lanes of
+            the batch run until the lane with the most pairs is done. With it, the lanes
+            are sorted by their number of pairs (descending) and run in waves on static,
+            prefixes ``caps`` of that order, halving: wave i runs the first caps[i]
+            lanes until every lane past caps[i + 1] is done (the (caps[i + 1] + 1)-th
+            largest count), the last wave until the largest. No lane stops before its
+            pairs are done, and a lane's steps do not depend on the others (the grid is
+            an AND of its pairs' keep words), so the words are those of the full run.
+            Returns the words and the lanes executed (steps x lanes, int32 [])."""
             todo = sum(jax.lax.population_count(bits[w]).astype(jnp.int32)
                        for w in range(words_per_round))
+            n = todo.size
 
-            def step(_, carry):
-                words, summary, cur, cur_w = carry
-                need = cur == 0
-                w_new = jnp.minimum(ctz(summary), words_per_round - 1)
-                loaded = jnp.take_along_axis(bits, w_new[None], 0)[0]
-                cur = jnp.where(need & (summary != 0), loaded, cur)
-                cur_w = jnp.where(need, w_new, cur_w)
-                summary = jnp.where(need, summary & (summary - one), summary)
-                has = cur != 0
-                slot = (base + cur_w) * 32 + ctz(cur)
-                cur = cur & (cur - one)
-                idx = jnp.where(has, offsets[:, None] + slot, 0)
-                keep = raster_pair(entries[idx], has)
-                return [wd & kp for wd, kp in zip(words, keep)], summary, cur, cur_w
+            def lane_of(a):
+                return a.reshape(-1)
 
-            n_steps = jnp.max(todo)
-            words, _, _, _ = jax.lax.fori_loop(
-                0, n_steps, step,
-                (words, summary, jnp.zeros(shape, jnp.uint32), jnp.zeros(shape, jnp.int32)))
-            return words, n_steps
+            # per-lane data the steps read (bits: [words_per_round, lanes])
+            data = {"bits": bits.reshape(words_per_round, n),
+                    "off": lane_of(jnp.broadcast_to(offsets[:, None], shape)),
+                    "px": jax.tree_util.tree_map(lambda a: lane_of(jnp.broadcast_to(a, shape)),
+                                                 px_all)}
+            state = ([lane_of(wd) for wd in words], lane_of(summary),
+                     jnp.zeros(n, jnp.uint32), jnp.zeros(n, jnp.int32))
+            todo = lane_of(todo)
+            if compact:
+                order = jnp.argsort(-todo, stable=True)
+                data, state = jax.tree_util.tree_map(lambda a: a[..., order], (data, state))
+                ranked = todo[order]
+                caps = [c for c in (n >> i for i in range(16)) if c >= MIN_FLUSH_LANES]
+                ends = [ranked[c] for c in caps[1:]] + [ranked[0]]
+            else:
+                caps, ends = [n], [jnp.max(todo)]
+
+            def step_on(lanes):
+                def step(_, carry):
+                    words, summary, cur, cur_w = carry
+                    need = cur == 0
+                    w_new = jnp.minimum(ctz(summary), words_per_round - 1)
+                    loaded = jnp.take_along_axis(lanes["bits"], w_new[None], 0)[0]
+                    cur = jnp.where(need & (summary != 0), loaded, cur)
+                    cur_w = jnp.where(need, w_new, cur_w)
+                    summary = jnp.where(need, summary & (summary - one), summary)
+                    has = cur != 0
+                    slot = (base + cur_w) * 32 + ctz(cur)
+                    cur = cur & (cur - one)
+                    idx = jnp.where(has, lanes["off"] + slot, 0)
+                    keep = raster_pair(entries[idx], has, lanes["px"])
+                    return [wd & kp for wd, kp in zip(words, keep)], summary, cur, cur_w
+                return step
+
+            out = state[0]
+            start, executed = jnp.int32(0), jnp.int32(0)
+            for cap, end in zip(caps, ends):
+                lanes, state = jax.tree_util.tree_map(lambda a: a[..., :cap], (data, state))
+                state = jax.lax.fori_loop(start, end, step_on(lanes), state)
+                out = [o.at[:cap].set(wd) for o, wd in zip(out, state[0])]
+                executed = executed + cap * jnp.maximum(end - start, 0)
+                start = jnp.maximum(start, end)
+            if compact:
+                out = [jnp.zeros_like(o).at[order].set(o) for o in out]
+            return [o.reshape(shape) for o in out], executed
 
         def round_(state):
             base, words, tests, rast, clamp, alive, steps = state
@@ -382,9 +431,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 base, end, record,
                 (base, tests, rast, clamp, jnp.zeros((words_per_round,) + shape, jnp.uint32),
                  jnp.zeros(shape, jnp.uint32), alive))
-            words, n_steps = flush(words, base, bits, summary)
+            words, executed = flush(words, base, bits, summary)
             alive = functools.reduce(jnp.logical_or, [wd != 0 for wd in words])
-            return end, words, tests, rast, clamp, alive, steps + n_steps
+            return end, words, tests, rast, clamp, alive, steps + executed
 
         def more(state):
             return (state[0] < n_words) & jnp.any(state[5] & rel)
@@ -392,9 +441,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         alive0 = functools.reduce(jnp.logical_or, [wd != 0 for wd in words0])
         state = jax.lax.while_loop(more, round_, (jnp.int32(0), words0, zero, zero, zero,
                                                   alive0, jnp.int32(0)))
-        _, words, tests, rast, clamp, _, steps = state
+        _, words, tests, rast, clamp, _, lanes = state
         vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
-        return jnp.where(rel, vis, 0.0), tests, rast, clamp, steps
+        return jnp.where(rel, vis, 0.0), tests, rast, clamp, lanes
 
     return run
 
@@ -519,7 +568,7 @@ def soft_tiled_impl(scene, gbuf, light, **kwargs):
 
 def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, shadow_eps,
                 grid, rotate, seed, projection, disk_scale, horizon, chunk, mode, method,
-                defer=False):
+                defer=False, compact=True):
     """(visibility float [H, W], counters) of :func:`soft_tiled_impl`; stages into
     ``timer``."""
     cam = gbuf.camera
@@ -592,7 +641,8 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             tri_soa = np.ascontiguousarray(tri_g_arr.reshape(-1, 9).T)
             args_common = (pix, jnp.asarray(tri_soa), jnp.asarray(tri_id), jnp.asarray(ent),
                            jnp.asarray(ehalf), jnp.asarray(dtype(eps)))
-            kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode, defer)
+            kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode, defer,
+                                  compact)
             nchunks = -(-counts // chunk)
             vis = np.zeros((n_tiles, TILE * TILE))
             tests = np.zeros((n_tiles, TILE * TILE), np.int64)
@@ -620,7 +670,7 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             tests[members_t] = np.asarray(te)[:n]
             rast[members_t] = np.asarray(ra)[:n]
             clamped[members_t] = np.asarray(cl)[:n]
-            raster_lanes += int(st) * batch * TILE * TILE
+            raster_lanes += int(st)
 
     with timer.stage("output"):
         def to_image(values, fill=0):
@@ -744,6 +794,12 @@ SOFT_DECLARATION = {
                                    "grid is empty; False = rasterize every visited pair "
                                    "and gate the result (same visibility)",
                                    allowed=(True, False)),
+                   "compact": Option(True, "defer: each flush step runs only on the lanes "
+                                     "with recorded pairs left (lanes sorted by their pair "
+                                     "count, waves of shrinking static size); False = every "
+                                     "lane of the batch until the longest is done (same "
+                                     "visibility and counters except raster_lanes)",
+                                     allowed=(True, False)),
                    **COMMON_SOFT})
 def soft_tiled(scene, gbuf, light, **opts):
     culling, rest = split_culling(opts)
