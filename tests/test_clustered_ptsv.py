@@ -168,7 +168,8 @@ def test_keys_masks_and_boxes_against_loops():
         scale = jnp.asarray(np.linspace(0.5, 2, len(keys)))
         _, table = ch.tile_slots(tree, jnp.asarray(px), jnp.asarray(py), valid)
         for storage in ("full", "compact"):
-            h = ch.build(tree, jnp.asarray(keys), valid, coords, scale, storage, table=table)
+            h = ch.build(tree, jnp.asarray(keys), valid, coords, scale, storage,
+                         **_tiles(keys, table))
             for lvl, (a, b) in enumerate(zip(h.masks, ch.masks_numpy(tree, keys))):
                 np.testing.assert_array_equal(np.asarray(a), b, err_msg=f"level {lvl}")
             # boxes (leaf level and one inner level) against a loop over samples
@@ -298,6 +299,14 @@ def _build_inputs(name, kind, precision, z_bits=0, depth_slices="clamp"):
     return tree, keys, valid, coords, scale, ch.tile_slots(tree, px, py, valid)[1]
 
 
+def _tiles(keys, table):
+    """The build's per-tile arguments from the tile table (as the sample stage makes
+    them)."""
+    keys = jnp.asarray(keys)
+    return dict(tile_keys=keys[jnp.minimum(table, keys.shape[0] - 1)],
+                tile_valid=table < keys.shape[0])
+
+
 def _caps(tree, storage, s):
     s = -(-s // ch.ENTRY_CHUNK) * ch.ENTRY_CHUNK
     return tuple(tree.nodes(lv) if storage == "full" else min(tree.nodes(lv), s)
@@ -322,7 +331,7 @@ def test_build_equals_the_full_tree_build(precision):
             tree, keys, valid, coords, scale, table = _build_inputs(name, kind, precision,
                                                                     **opts)
             caps = _caps(tree, storage, keys.shape[0])
-            new = ch.build(tree, keys, valid, coords, scale, storage, table=table)
+            new = ch.build(tree, keys, valid, coords, scale, storage, **_tiles(keys, table))
             ref = _full_tree_build(tree, storage, caps, keys, valid, coords, scale)
             _assert_same_hierarchy(new, ref, caps)
             assert int(new.counts[-1]) == len(np.unique(np.asarray(keys)[np.asarray(valid)]))
@@ -333,7 +342,7 @@ def test_build_keeps_counters_and_lit_masks(monkeypatch):
     and lit mask (the starts of absent nodes, now 0, are never read)."""
     real = ch.build
 
-    def reference(tree, keys, valid, coords, scale, storage="compact", *, table):
+    def reference(tree, keys, valid, coords, scale, storage="compact", **tiles):
         caps = _caps(tree, storage, keys.shape[0])
         m, _, counts, starts, lo, hi, smin = _full_tree_build(tree, storage, caps, keys,
                                                               valid, coords, scale)
@@ -378,7 +387,7 @@ def test_build_on_duplicates_and_crowded_tiles():
     _, table = ch.tile_slots(tree, jnp.asarray(pxs, jnp.int32), jnp.asarray(pys, jnp.int32),
                              valid)
     for storage in ("compact", "full"):
-        new = ch.build(tree, keys, valid, coords, scale, storage, table=table)
+        new = ch.build(tree, keys, valid, coords, scale, storage, **_tiles(keys, table))
         caps = _caps(tree, storage, 256)
         _assert_same_hierarchy(new, _full_tree_build(tree, storage, caps, keys, valid, coords,
                                                      scale), caps)

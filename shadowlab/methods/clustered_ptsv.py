@@ -437,10 +437,10 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             sst = _sample_stage(shape, params, pos, scale_d, view, jnp.asarray(index),
                                 samples.count)
             coords, keys, svalid = sst["coords"], sst["keys"], sst["valid"]
-            hier = dataclasses.replace(ch.build(shape, keys, svalid, coords, scale_d, storage,
-                                               table=sst["table"]),
-                                       tree=tree)
             tiles, table, slot = sst["tiles"], sst["table"], sst["slot"]
+            hier = dataclasses.replace(ch.build(shape, keys, svalid, coords, scale_d, storage,
+                                                tile_keys=tiles["tile_key"],
+                                                tile_valid=tiles["tile_valid"]), tree=tree)
             jax.block_until_ready((hier.lo, tiles))
         with timer.stage("setup"):
             own = "silhouette" if kind == "ptsv" else "culling"

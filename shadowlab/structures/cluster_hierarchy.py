@@ -418,28 +418,35 @@ def _pad_live(lo, hi, count):
     return _over(count, lo.shape[0], body, (lo, hi))
 
 
-def _tile_leaves(keys, valid, table, cap: int):
+def _row_prefix(x):
+    """Inclusive prefix sums along axis 1 of int32 [R, P] (P small): log2(P) shifted
+    adds (XLA's cumsum over a minor axis is a windowed reduction, several times
+    slower here)."""
+    sh = 1
+    while sh < x.shape[1]:
+        x = x + jnp.pad(x[:, :-sh], ((0, 0), (sh, 0)))
+        sh *= 2
+    return x
+
+
+def _tile_leaves(tile_keys, tile_valid, cap: int):
     """The distinct leaf keys (clusters): uint32 [cap] (tile-major, ascending within a
     tile; the first ``count`` entries are used) and count (int32).
 
     Samples of different tiles never share a key (the key holds the tile's x and y), so
-    duplicates are found within each tile's row of ``table`` (at most P samples): a
-    row sort and a comparison with the left neighbour. Then one prefix sum over the
-    rows' counts places each tile's clusters in the list. Work and memory follow the
-    samples; nothing is indexed by key.
+    duplicates are found within each tile's row (at most P samples, as the paper's warp
+    per tile does): a row sort and a comparison with the left neighbour. Prefix sums
+    over the rows' counts and within the rows place each tile's clusters in the list.
+    Work and memory follow the samples; nothing is indexed by key.
     """
-    s = keys.shape[0]
-    row = jnp.minimum(table, s - 1)
-    present = (table < s) & valid[row]
-    k = keys[row]
     # empty slots repeat a key of their row, so they add no distinct value
-    fill = jnp.max(jnp.where(present, k, 0), axis=1, keepdims=True)
-    k = jax.lax.sort(jnp.where(present, k, fill), dimension=1)
+    fill = jnp.max(jnp.where(tile_valid, tile_keys, 0), axis=1, keepdims=True)
+    k = jax.lax.sort(jnp.where(tile_valid, tile_keys, fill), dimension=1)
     first = jnp.concatenate([jnp.ones_like(k[:, :1], bool), k[:, 1:] != k[:, :-1]], axis=1)
-    first &= jnp.any(present, axis=1, keepdims=True)
-    per_tile = jnp.sum(first, axis=1, dtype=jnp.int32)
-    pos = (jnp.cumsum(per_tile) - per_tile)[:, None] + jnp.cumsum(first, axis=1,
-                                                                  dtype=jnp.int32) - 1
+    first &= jnp.any(tile_valid, axis=1, keepdims=True)
+    within = _row_prefix(first.astype(jnp.int32))
+    per_tile = within[:, -1]
+    pos = (jnp.cumsum(per_tile) - per_tile)[:, None] + within - 1
     leaves = jnp.zeros(cap, jnp.uint32).at[jnp.where(first, pos, cap)].set(k, mode="drop")
     return leaves, jnp.sum(per_tile)
 
@@ -449,47 +456,47 @@ def _lowest_bit(word):
     return jax.lax.population_count((word & (~word + jnp.uint32(1))) - jnp.uint32(1))
 
 
+def _represents(tree: TreeLayout, masks, key, level: int):
+    """bool [...]: whether the leaf entries ``key`` represent their level-``level`` node:
+    the node's lowest existing child is the entry's own, at every level from ``level``
+    down to the leaves (needs the masks of levels ``level`` .. D-1)."""
+    rep = jnp.ones(key.shape, bool)
+    for lv in range(level, tree.levels):
+        word = masks[lv][(key >> tree.shift(lv)).astype(jnp.int32)]
+        rep &= ((key >> tree.shift(lv + 1)) & jnp.uint32(31)) == _lowest_bit(word)
+    return rep
+
+
 def _masks_from_leaves(tree: TreeLayout, leaves, count):
-    """Child masks (levels 0..D-1), node counts (levels 1..D) and, per leaf entry, the
-    smallest level whose node it represents (int32 [cap]), from the distinct leaves.
+    """Child masks (levels 0..D-1) and node counts (levels 1..D) from the distinct leaves.
 
     Bottom-up, a bit per node set once by a scatter-add (the bits added to one word are
     distinct, so the add is an OR): every leaf sets its bit in its level-(D-1) word;
     a level-l node is then represented by the entry that represents its lowest existing
-    child (the lowest set bit of its word), which sets the node's bit in its parent's
-    word. Each level is one pass over the leaf list.
+    child (the lowest set bit of its word: :func:`_represents`), which sets the node's
+    bit in its parent's word. Each level is one pass over the leaf list.
     """
     d = tree.levels
     masks, counts = [None] * d, [None] * d
-    top = jnp.full(leaves.shape[0], d, jnp.int32)
     for level in range(d - 1, -1, -1):
         n_words = tree.nodes(level)
 
         def body(base, e, ok, carry, level=level, n_words=n_words):
-            words, top, n = carry
+            words, n = carry
             key = jax.lax.dynamic_slice_in_dim(leaves, base, e)
+            rep = ok & _represents(tree, masks, key, level + 1)
             node = key >> tree.shift(level + 1)
-            if level == d - 1:
-                rep = ok
-            else:
-                low = _lowest_bit(masks[level + 1][node.astype(jnp.int32)])
-                rep = ok & (jax.lax.dynamic_slice_in_dim(top, base, e) == level + 2) & (
-                    ((key >> tree.shift(level + 2)) & jnp.uint32(31)) == low)
-                top = jax.lax.dynamic_update_slice_in_dim(
-                    top, jnp.where(rep, level + 1, jax.lax.dynamic_slice_in_dim(top, base, e)),
-                    base, 0)
             parent = jnp.where(rep, (node >> FANOUT_BITS).astype(jnp.int32), n_words)
             words = words.at[parent].add(jnp.uint32(1) << (node & jnp.uint32(31)),
                                          mode="drop")
-            return words, top, n + jnp.sum(rep, dtype=jnp.int32)
+            return words, n + jnp.sum(rep, dtype=jnp.int32)
 
-        masks[level], top, counts[level] = _over(
-            count, leaves.shape[0], body,
-            (jnp.zeros(n_words, jnp.uint32), top, jnp.zeros((), jnp.int32)))
-    return masks, counts, top
+        masks[level], counts[level] = _over(
+            count, leaves.shape[0], body, (jnp.zeros(n_words, jnp.uint32), jnp.zeros((), jnp.int32)))
+    return masks, counts
 
 
-def _starts(tree: TreeLayout, masks, counts, leaves, count, top):
+def _starts(tree: TreeLayout, masks, counts, leaves, count):
     """``start`` per mask level (see :class:`Hierarchy`), top-down over the existing
     nodes: a level's nodes find their compact index from the level above
     (:func:`child_index`), write their words' popcounts at those indices, and an
@@ -502,8 +509,9 @@ def _starts(tree: TreeLayout, masks, counts, leaves, count, top):
         n_list = min(tree.nodes(level), cap)
 
         def reps(base, e, ok, level=level):
-            node = jax.lax.dynamic_slice_in_dim(leaves, base, e) >> tree.shift(level)
-            rep = ok & (jax.lax.dynamic_slice_in_dim(top, base, e) <= level)
+            key = jax.lax.dynamic_slice_in_dim(leaves, base, e)
+            node = key >> tree.shift(level)
+            rep = ok & _represents(tree, masks, key, level)
             return node, rep, child_index(masks, starts, level, node)
 
         def put(base, e, ok, pcs, level=level, n_list=n_list):
@@ -532,7 +540,7 @@ def _starts(tree: TreeLayout, masks, counts, leaves, count, top):
 
 @functools.partial(jax.jit, static_argnames=("tree", "storage", "caps", "list_cap"))
 def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, valid, coords,
-           scale, table):
+           scale, tile_keys, tile_valid):
     """Masks, counts, and explicit boxes and smin per level 1..D, in one call.
 
     The distinct leaves come from the tiles (:func:`_tile_leaves`), the masks and
@@ -545,8 +553,8 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, val
     d = tree.levels
     dtype = coords.dtype
     big = jnp.asarray(np.finfo(dtype).max, dtype)
-    leaves, n_leaves = _tile_leaves(keys, valid, table, list_cap)
-    masks, counts, top = _masks_from_leaves(tree, leaves, n_leaves)
+    leaves, n_leaves = _tile_leaves(tile_keys, tile_valid, list_cap)
+    masks, counts = _masks_from_leaves(tree, leaves, n_leaves)
     counts = tuple(counts)
     los, his, smins = [None] * d, [None] * d, [None] * d
     if storage == "full":
@@ -563,7 +571,7 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, val
             smins[level - 1] = jnp.min(smins[level].reshape(n, -1), axis=1)
         padded = [pad_box(lo, hi, dtype) for lo, hi in zip(los, his)]
     else:
-        starts = _starts(tree, masks, counts, leaves, n_leaves, top)
+        starts = _starts(tree, masks, counts, leaves, n_leaves)
         cap = caps[d - 1]
         idx = jnp.where(valid, child_index(masks, starts, d, keys), cap)
         los[d - 1] = jnp.full((cap, 3), big).at[idx].min(coords, mode="drop")
@@ -601,7 +609,7 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, val
 
 
 def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact", *,
-          table) -> Hierarchy:
+          tile_keys, tile_valid) -> Hierarchy:
     """Build masks and explicit bounds over samples (one jitted call, no host round
     trip; ``counts`` stay on the device until read).
 
@@ -611,8 +619,9 @@ def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact"
         storage: "full" or "compact" (how explicit boxes are stored). Compact lists are
             sized min(nodes, samples rounded up to ``ENTRY_CHUNK``) per level (a static
             bound: no count is read back).
-        table: int32 [tiles, P], the samples of each leaf tile (:func:`tile_slots`);
-            every valid sample must be in it.
+        tile_keys: uint32 [tiles, P], the keys of each leaf tile's samples, and
+            tile_valid: bool [tiles, P], where there is one (the samples grouped by
+            :func:`tile_slots`' table); every valid sample must be in them.
 
     Apart from the mask (and, for "compact", ``start``) words, which the traversal
     indexes by node as the paper does, work and memory follow the samples and the
@@ -625,7 +634,7 @@ def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact"
     else:
         caps = tuple(min(tree.nodes(level), s) for level in range(1, tree.levels + 1))
     masks, counts, start, lo, hi, smin = _build(tree, storage, caps, list_cap, keys, valid,
-                                                coords, scale, table)
+                                                coords, scale, tile_keys, tile_valid)
     return Hierarchy(tree, masks, counts, storage, start, lo, hi, smin)
 
 
