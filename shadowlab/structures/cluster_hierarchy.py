@@ -441,7 +441,8 @@ def _tile_leaves(tile_keys, tile_valid, cap: int):
     """
     # empty slots repeat a key of their row, so they add no distinct value
     fill = jnp.max(jnp.where(tile_valid, tile_keys, 0), axis=1, keepdims=True)
-    k = jax.lax.sort(jnp.where(tile_valid, tile_keys, fill), dimension=1)
+    # equal integers are indistinguishable, so the (faster) unstable sort suffices
+    k = jax.lax.sort(jnp.where(tile_valid, tile_keys, fill), dimension=1, is_stable=False)
     first = jnp.concatenate([jnp.ones_like(k[:, :1], bool), k[:, 1:] != k[:, :-1]], axis=1)
     first &= jnp.any(tile_valid, axis=1, keepdims=True)
     within = _row_prefix(first.astype(jnp.int32))
