@@ -406,8 +406,9 @@ def _over(count, cap: int, body, init):
 
 
 def _pad_live(lo, hi, count):
-    """``pad_box`` applied to rows [0, count) of lo, hi [cap, 3] (cap a multiple of the
-    chunk); rows past it (absent nodes, never read) keep their unpadded fill."""
+    """``pad_box`` applied to the chunks of lo, hi [cap, 3] (cap a multiple of the chunk)
+    that hold rows [0, count); rows after the last such chunk (absent nodes, never read)
+    keep their unpadded fill."""
     def body(base, e, ok, carry):
         olo, ohi = carry
         plo, phi = pad_box(jax.lax.dynamic_slice_in_dim(lo, base, e),
@@ -492,8 +493,8 @@ def _masks_from_leaves(tree: TreeLayout, leaves, count):
                                          mode="drop")
             return words, n + jnp.sum(rep, dtype=jnp.int32)
 
-        masks[level], counts[level] = _over(
-            count, leaves.shape[0], body, (jnp.zeros(n_words, jnp.uint32), jnp.zeros((), jnp.int32)))
+        masks[level], counts[level] = _over(count, leaves.shape[0], body, (
+            jnp.zeros(n_words, jnp.uint32), jnp.zeros((), jnp.int32)))
     return masks, counts
 
 
