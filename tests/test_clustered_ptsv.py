@@ -166,8 +166,10 @@ def test_keys_masks_and_boxes_against_loops():
         assert np.mean(keys == ref) > 0.999
         valid = jnp.ones(len(keys), bool)
         scale = jnp.asarray(np.linspace(0.5, 2, len(keys)))
+        _, table = ch.tile_slots(tree, jnp.asarray(px), jnp.asarray(py), valid)
         for storage in ("full", "compact"):
-            h = ch.build(tree, jnp.asarray(keys), valid, coords, scale, storage)
+            h = ch.build(tree, jnp.asarray(keys), valid, coords, scale, storage,
+                         **_tiles(keys, table))
             for lvl, (a, b) in enumerate(zip(h.masks, ch.masks_numpy(tree, keys))):
                 np.testing.assert_array_equal(np.asarray(a), b, err_msg=f"level {lvl}")
             # boxes (leaf level and one inner level) against a loop over samples
@@ -189,6 +191,207 @@ def test_keys_masks_and_boxes_against_loops():
                 ilo, ihi = ch.implicit_bounds(tree, lvl, jnp.asarray(keys >> tree.shift(lvl)),
                                               np.float64)
                 assert np.all(np.asarray(ilo) <= c) and np.all(np.asarray(ihi) >= c), lvl
+
+
+@functools.partial(jax.jit, static_argnames=("tree", "storage", "caps"))
+def _full_tree_build(tree, storage, caps, keys, valid, coords, scale):
+    """The previous build, kept as the reference: a bool per leaf of the key space, the
+    existence pyramid and masks packed from it, starts as prefix sums over whole levels,
+    boxes scattered from the samples (compact: to start + popcount, inner levels from
+    the children). Same outputs as ``cluster_hierarchy._build``, at any size."""
+    d = tree.levels
+    big = jnp.asarray(np.finfo(coords.dtype).max, coords.dtype)
+    exists = [jnp.zeros(tree.nodes(d), bool).at[jnp.where(valid, keys, tree.nodes(d))].set(
+        True, mode="drop")]
+    for level in range(d - 1, 0, -1):
+        exists.insert(0, jnp.any(exists[0].reshape(tree.nodes(level), -1), axis=1))
+    weights = jnp.left_shift(jnp.uint32(1), jnp.arange(32, dtype=jnp.uint32))
+    masks = [jnp.sum(jnp.zeros(tree.nodes(lv) * 32, bool).at[: e.shape[0]].set(e).reshape(
+        -1, 32).astype(jnp.uint32) * weights, axis=1, dtype=jnp.uint32)
+        for lv, e in enumerate(exists)]
+    counts = tuple(jnp.sum(jax.lax.population_count(m).astype(jnp.int32)) for m in masks)
+    los, his, sms = [None] * d, [None] * d, [None] * d
+    starts = None
+    if storage == "full":
+        idx = jnp.where(valid, keys.astype(jnp.int32), caps[-1])
+    else:
+        starts = [jnp.cumsum(c) - c for c in
+                  (jax.lax.population_count(m).astype(jnp.int32) for m in masks)]
+        idx = jnp.where(valid, ch.child_index(masks, starts, d, keys), caps[-1])
+    los[-1] = jnp.full((caps[-1], 3), big).at[idx].min(coords, mode="drop")
+    his[-1] = jnp.full((caps[-1], 3), -big).at[idx].max(coords, mode="drop")
+    sms[-1] = jnp.full((caps[-1],), big).at[idx].min(scale, mode="drop")
+    ekey = jnp.zeros(caps[-1], jnp.uint32).at[idx].set(keys, mode="drop")
+    for level in range(d - 1, 0, -1):
+        if storage == "full":
+            n = tree.nodes(level)
+            los[level - 1] = jnp.min(los[level].reshape(n, -1, 3), axis=1)
+            his[level - 1] = jnp.max(his[level].reshape(n, -1, 3), axis=1)
+            sms[level - 1] = jnp.min(sms[level].reshape(n, -1), axis=1)
+            continue
+        cap = caps[level - 1]
+        live = jnp.arange(caps[level]) < counts[level]
+        pkey = ekey >> 5
+        parent = jnp.where(live, ch.child_index(masks, starts, level, pkey), cap)
+        los[level - 1] = jnp.full((cap, 3), big).at[parent].min(los[level], mode="drop")
+        his[level - 1] = jnp.full((cap, 3), -big).at[parent].max(his[level], mode="drop")
+        sms[level - 1] = jnp.full((cap,), big).at[parent].min(sms[level], mode="drop")
+        ekey = jnp.zeros(cap, jnp.uint32).at[parent].set(pkey, mode="drop")
+    lo, hi = [], []
+    for level, (a, b) in enumerate(zip(los, his)):
+        if storage == "full":
+            pa, pb = ch.pad_box(a, b, a.dtype)
+        else:              # whole chunks up to the count are padded, later rows keep their fill
+            e = min(a.shape[0], ch.ENTRY_CHUNK)
+            live = (jnp.arange(a.shape[0]) < (counts[level] + e - 1) // e * e)[:, None]
+            pa, pb = ch.pad_box(a, b, a.dtype)
+            pa, pb = jnp.where(live, pa, a), jnp.where(live, pb, b)
+        lo.append(pa)
+        hi.append(pb)
+    return masks, exists, counts, starts, lo, hi, sms
+
+
+def _assert_same_hierarchy(new, ref, caps):
+    masks, exists, counts, starts, lo, hi, smin = ref
+    tree = new.tree
+    for lvl in range(tree.levels):
+        np.testing.assert_array_equal(np.asarray(new.masks[lvl]), np.asarray(masks[lvl]))
+        np.testing.assert_array_equal(np.asarray(new.exists[lvl]), np.asarray(exists[lvl]))
+        assert int(new.counts[lvl]) == int(counts[lvl])
+        for a, b in ((new.lo, lo), (new.hi, hi), (new.smin, smin)):
+            assert a[lvl].shape == (caps[lvl],) + b[lvl].shape[1:]
+            np.testing.assert_array_equal(np.asarray(a[lvl]), np.asarray(b[lvl]))
+        if starts is None:
+            assert new.start is None
+            continue
+        # start: equal on existing nodes (the only ones read), 0 on absent ones
+        word = np.asarray(masks[lvl])
+        has = (word != 0) | (np.arange(len(word)) == 0)
+        got = np.asarray(new.start[lvl])
+        np.testing.assert_array_equal(got[has], np.asarray(starts[lvl])[has])
+        assert not got[~has].any()
+    if new.ptr is not None:                       # the paper's pointers, from the masks
+        for lvl in range(1, tree.levels + 1):
+            want = np.where(np.asarray(exists[lvl - 1]), 0, -1)
+            rows = np.flatnonzero(want == 0)
+            want[rows] = np.arange(len(rows))
+            np.testing.assert_array_equal(np.asarray(new.ptr[lvl - 1]), want)
+
+
+def _build_inputs(name, kind, precision, z_bits=0, depth_slices="clamp"):
+    """Keys, validity, coordinates, bias scales (with zeros) and tile table of a scene's
+    light-facing samples, padded to 4096 rows as the pipeline pads them."""
+    scene, gbuf, light, smp = _samples_of(name)
+    cam = gbuf.camera
+    tree = (ch.cluster_layout(cam, z_bits, depth_slices) if kind == "cluster"
+            else ch.ptsv_layout(cam))
+    dtype = np.float64 if precision == "float64" else np.float32
+    s, n = 4096, smp.count
+    w = gbuf.shape[1]
+    px = jnp.asarray(np.pad(smp.index % w, (0, s - n)), jnp.int32)
+    py = jnp.asarray(np.pad(smp.index // w, (0, s - n)), jnp.int32)
+    valid = jnp.arange(s) < n
+    pos = jnp.asarray(np.pad(smp.position, ((0, s - n), (0, 0))), dtype)
+    coords = ch.sample_coords(tree, pos, jnp.asarray(cam.view_matrix(), dtype))
+    coords = jnp.where(valid[:, None], coords, coords[0])
+    keys, _ = ch.sample_keys(tree, px, py, coords)
+    scale = jnp.asarray(np.random.default_rng(1).choice([0.0, 0.3, 1.0, 2.0], s), dtype)
+    return tree, keys, valid, coords, scale, ch.tile_slots(tree, px, py, valid)[1]
+
+
+def _tiles(keys, table):
+    """The build's per-tile arguments from the tile table (as the sample stage makes
+    them)."""
+    keys = jnp.asarray(keys)
+    return dict(tile_keys=keys[jnp.minimum(table, keys.shape[0] - 1)],
+                tile_valid=table < keys.shape[0])
+
+
+def _caps(tree, storage, s):
+    s = -(-s // ch.ENTRY_CHUNK) * ch.ENTRY_CHUNK
+    return tuple(tree.nodes(lv) if storage == "full" else min(tree.nodes(lv), s)
+                 for lv in range(1, tree.levels + 1))
+
+
+BUILD_CASES = {"float32": [("fuzzy", "cluster", {}, "compact"), ("gate", "cluster", {}, "full"),
+                           ("soup", "ptsv", {}, "compact")],
+               "float64": [("fuzzy", "cluster", {}, "compact"),
+                           ("sphere_grid", "cluster", dict(z_bits=4, depth_slices="scaled"),
+                            "compact")]}
+
+
+@pytest.mark.parametrize("precision", sorted(BUILD_CASES))
+def test_build_equals_the_full_tree_build(precision):
+    """The sample-proportional build (tile dedupe, bottom-up masks over the clusters,
+    top-down starts) gives the previous full-tree build's masks, counts, starts, boxes
+    and smin bit for bit: cluster tree (default key; a 4-bit z key with scaled slices)
+    and PTSV tree, both storages; fuzzy has tiles with many clusters."""
+    with jax.enable_x64(precision == "float64"):
+        for name, kind, opts, storage in BUILD_CASES[precision]:
+            tree, keys, valid, coords, scale, table = _build_inputs(name, kind, precision,
+                                                                    **opts)
+            caps = _caps(tree, storage, keys.shape[0])
+            new = ch.build(tree, keys, valid, coords, scale, storage, **_tiles(keys, table))
+            ref = _full_tree_build(tree, storage, caps, keys, valid, coords, scale)
+            _assert_same_hierarchy(new, ref, caps)
+            assert int(new.counts[-1]) == len(np.unique(np.asarray(keys)[np.asarray(valid)]))
+
+
+def test_build_keeps_counters_and_lit_masks(monkeypatch):
+    """The whole method with the reference build in its place gives the same counters
+    and lit mask (the starts of absent nodes, now 0, are never read)."""
+    real = ch.build
+
+    def reference(tree, keys, valid, coords, scale, storage="compact", **tiles):
+        caps = _caps(tree, storage, keys.shape[0])
+        m, _, counts, starts, lo, hi, smin = _full_tree_build(tree, storage, caps, keys,
+                                                              valid, coords, scale)
+        return ch.Hierarchy(tree, tuple(m), counts, storage, tuple(starts), tuple(lo),
+                            tuple(hi), tuple(smin))
+
+    scene, gbuf, light, _ = _setup("gate")
+    runs = []
+    for build in (real, reference):
+        monkeypatch.setattr(ch, "build", build)
+        runs.append(run_traversal_method(scene, gbuf, light, kind="cluster", precision="float32",
+                                         shadow_eps=1e-5, bias="receiver")[0])
+    new, old = runs
+    np.testing.assert_array_equal(new.lit, old.lit)
+    assert new.counters.keys() == old.counters.keys()
+    for key, value in new.counters.items():
+        np.testing.assert_array_equal(value, old.counters[key], err_msg=key)
+    assert new.counters["trivial_accepts"] > 0 and new.counters["tests"] > 0
+
+
+def test_build_on_duplicates_and_crowded_tiles():
+    """Hand-made 16 x 16 image: a tile with 64 distinct clusters, a tile whose samples
+    share one key, a tile with a few repeated keys, an empty tile, padding rows and bias
+    scales of +-0: the build equals the full-tree reference."""
+    cam = sl.Camera(eye=(0, 0, 5), target=(0, 0, 0), near=0.1, far=100, resolution=(16, 16))
+    tree = ch.cluster_layout(cam, z_bits=6)
+    rng = np.random.default_rng(7)
+    py, px = np.divmod(np.arange(256), 16)
+    keep = ~((px >= 8) & (py >= 8))                         # tile (1, 1) stays empty
+    px, py = px[keep], py[keep]
+    few = rng.integers(0, 3, len(px))
+    z = np.where(px < 8, np.where(py < 8, (py % 8) * 8 + px % 8, 5), few)
+    s, n = 256, len(px)
+    pxs = np.concatenate([px, np.zeros(s - n, int)])
+    pys = np.concatenate([py, np.zeros(s - n, int)])
+    zs = np.concatenate([z, np.full(s - n, 9)])
+    keys = ch.encode(tuple(jnp.asarray(v, jnp.uint32) for v in (pxs // 8, pys // 8, zs)),
+                     tree.layout, xp=jnp)
+    valid = jnp.arange(s) < n
+    coords = jnp.asarray(rng.normal(size=(s, 3)), jnp.float32)
+    scale = jnp.asarray(rng.choice([0.0, -0.0, 0.5, 2.0], s), jnp.float32)
+    _, table = ch.tile_slots(tree, jnp.asarray(pxs, jnp.int32), jnp.asarray(pys, jnp.int32),
+                             valid)
+    for storage in ("compact", "full"):
+        new = ch.build(tree, keys, valid, coords, scale, storage, **_tiles(keys, table))
+        caps = _caps(tree, storage, 256)
+        _assert_same_hierarchy(new, _full_tree_build(tree, storage, caps, keys, valid, coords,
+                                                     scale), caps)
+        assert int(new.counts[-1]) == 64 + 1 + len(np.unique(few[px >= 8]))
 
 
 def test_memory_report_matches_the_paper():

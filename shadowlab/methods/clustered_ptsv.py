@@ -322,13 +322,7 @@ def _sample_stage(shape, params, pos, scale, view, index, count):
     coords = ch.sample_coords(tree, pos, view)
     coords = jnp.where(valid[:, None], coords, coords[0])
     keys, saturated = ch.sample_keys(tree, px, py, coords)
-    tw, th = tree.tile
-    tiles = tree.tiles_x * tree.tiles_y
-    tile = (py // th) * tree.tiles_x + px // tw
-    within = (py % th) * tw + px % tw
-    slot = jnp.where(valid, tile * tree.tile_pixels + within, 0)
-    table = jnp.full((tiles, tree.tile_pixels), s, jnp.int32).at[
-        jnp.where(valid, tile, tiles), within].set(jnp.arange(s, dtype=jnp.int32), mode="drop")
+    slot, table = ch.tile_slots(tree, px, py, valid)
     sc = jnp.minimum(table, s - 1)
     p = pos[sc]
     tile_arrays = dict(tile_x=p[..., 0], tile_y=p[..., 1], tile_z=p[..., 2],
@@ -407,9 +401,10 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             sst = _sample_stage(shape, params, pos, scale_d, view, jnp.asarray(index),
                                 samples.count)
             coords, keys, svalid = sst["coords"], sst["keys"], sst["valid"]
-            hier = dataclasses.replace(ch.build(shape, keys, svalid, coords, scale_d, storage),
-                                       tree=tree)
             tiles, table, slot = sst["tiles"], sst["table"], sst["slot"]
+            hier = dataclasses.replace(ch.build(shape, keys, svalid, coords, scale_d, storage,
+                                                tile_keys=tiles["tile_key"],
+                                                tile_valid=tiles["tile_valid"]), tree=tree)
             jax.block_until_ready((hier.lo, tiles))
         with timer.stage("setup"):
             own = "silhouette" if kind == "ptsv" else "culling"

@@ -293,16 +293,17 @@ class Hierarchy:
 
     Attributes:
         tree: the static layout.
-        masks: per mask level l = 0..D-1, uint32 [nodes(l)] child masks.
-        exists: per level l = 1..D (index l - 1), bool [nodes(l)].
+        masks: per mask level l = 0..D-1, uint32 [nodes(l)] child masks (the paper's full
+            mask arrays: one bit per node of levels 1..D).
         counts: per level l = 1..D, the number of existing nodes (int32 scalars, on the
             device until read).
         storage: "full" or "compact".
-        start: per mask level l = 0..D-1, int32 [nodes(l)]: the number of existing
-            level-(l + 1) nodes before node i's first child (exclusive prefix sum of the
-            words' popcounts); None for "full". A child's index in the compact list is
-            ``start[parent] + popcount(word & ((1 << c) - 1))`` (:func:`child_index`), so
-            the per-node pointers (:attr:`ptr`) need not be stored.
+        start: per mask level l = 0..D-1, int32 [nodes(l)]: for an existing node i, the
+            number of existing level-(l + 1) nodes before its first child (in key order);
+            0 for absent nodes (never read). None for "full". A child's index in the
+            compact list is ``start[parent] + popcount(word & ((1 << c) - 1))``
+            (:func:`child_index`), so the per-node pointers (:attr:`ptr`) need not be
+            stored.
         lo, hi: per level 1..D, float [capacity_l, 3] explicit boxes (padded); for
             "full" capacity_l = nodes(l), for "compact" min(nodes(l), samples).
         smin: per level 1..D, float [capacity_l], the minimum bias scale of the node's
@@ -311,7 +312,6 @@ class Hierarchy:
 
     tree: TreeLayout
     masks: tuple
-    exists: tuple
     counts: tuple
     storage: str
     start: tuple | None
@@ -322,6 +322,14 @@ class Hierarchy:
     @property
     def clusters(self) -> int:
         return int(self.counts[-1])
+
+    @functools.cached_property
+    def exists(self) -> tuple:
+        """Per level 1..D, bool [nodes(l)]: the masks' bits unpacked, a bool per node of
+        the full tree. On demand for tests and analysis; the build never forms it."""
+        c = jnp.arange(32, dtype=jnp.uint32)
+        return tuple((((m[:, None] >> c) & jnp.uint32(1)) == 1).reshape(-1)[
+            : self.tree.nodes(level + 1)] for level, m in enumerate(self.masks))
 
     @functools.cached_property
     def ptr(self) -> tuple | None:
@@ -343,15 +351,6 @@ def child_index(masks, start, level: int, node):
     return start[level - 1][parent] + jax.lax.population_count(below).astype(jnp.int32)
 
 
-def _pack_masks(exists_child, nodes_parent: int):
-    """uint32 [nodes_parent] words from bool child existence (padded to 32 per parent)."""
-    n = exists_child.shape[0]
-    flat = jnp.zeros(nodes_parent * 32, bool).at[:n].set(exists_child)
-    bits = flat.reshape(nodes_parent, 32).astype(jnp.uint32)
-    weights = jnp.left_shift(jnp.uint32(1), jnp.arange(32, dtype=jnp.uint32))
-    return jnp.sum(bits * weights, axis=1, dtype=jnp.uint32)
-
-
 @functools.partial(jax.jit, static_argnames=("tree", "level"))
 def _compact_pointers(tree: TreeLayout, masks, level: int):
     """int32 [nodes(level)]: index of each existing level-``level`` node in key order
@@ -368,49 +367,197 @@ def _compact_pointers(tree: TreeLayout, masks, level: int):
     return ptr.reshape(-1)[: tree.nodes(level)]
 
 
-ENTRY_CHUNK = 4096       # compact entries per step of the inner-level and padding loops
+def tile_slots(tree: TreeLayout, px, py, valid):
+    """The samples grouped by leaf tile (the paper builds with one warp per 8 x 8 tile).
+
+    Args:
+        px, py: int32 [S] pixel of each sample; valid: bool [S].
+    Returns:
+        slot: int32 [S], ``tile * P + pixel within the tile`` (0 for invalid rows), P =
+        ``tree.tile_pixels``; table: int32 [tiles, P], the sample at each slot (S where
+        there is none).
+    """
+    s = px.shape[0]
+    tw, th = tree.tile
+    tiles = tree.tiles_x * tree.tiles_y
+    tile = (py // th) * tree.tiles_x + px // tw
+    within = (py % th) * tw + px % tw
+    slot = jnp.where(valid, tile * tree.tile_pixels + within, 0)
+    table = jnp.full((tiles, tree.tile_pixels), s, jnp.int32).at[
+        jnp.where(valid, tile, tiles), within].set(jnp.arange(s, dtype=jnp.int32), mode="drop")
+    return slot, table
+
+
+ENTRY_CHUNK = 4096       # list entries per step of the build's loops over existing nodes
+
+
+def _over(count, cap: int, body, init):
+    """``init`` carried through ``body(base, e, ok, carry)`` for chunks [base, base + e)
+    of a list with static capacity ``cap`` (a multiple of e = min(cap, ENTRY_CHUNK));
+    ``ok`` bool [e] marks the entries below ``count``. The trip count follows ``count``
+    (a traced int), so the work is the list's length, not its capacity."""
+    e = min(cap, ENTRY_CHUNK)
+
+    def step(i, carry):
+        base = i * e
+        return body(base, e, base + jnp.arange(e) < count, carry)
+
+    return jax.lax.fori_loop(0, (count + e - 1) // e, step, init)
 
 
 def _pad_live(lo, hi, count):
-    """``pad_box`` applied to rows [0, count) of lo, hi [cap, 3] (cap a multiple of the
-    chunk), in chunks whose trip count follows ``count``; rows past it (absent nodes,
-    never read) keep their unpadded fill."""
-    cap = lo.shape[0]
-    e = min(cap, ENTRY_CHUNK)
-
-    def body(i, carry):
+    """``pad_box`` applied to the chunks of lo, hi [cap, 3] (cap a multiple of the chunk)
+    that hold rows [0, count); rows after the last such chunk (absent nodes, never read)
+    keep their unpadded fill."""
+    def body(base, e, ok, carry):
         olo, ohi = carry
-        plo, phi = pad_box(jax.lax.dynamic_slice_in_dim(lo, i * e, e),
-                           jax.lax.dynamic_slice_in_dim(hi, i * e, e), lo.dtype)
-        return (jax.lax.dynamic_update_slice_in_dim(olo, plo, i * e, 0),
-                jax.lax.dynamic_update_slice_in_dim(ohi, phi, i * e, 0))
+        plo, phi = pad_box(jax.lax.dynamic_slice_in_dim(lo, base, e),
+                           jax.lax.dynamic_slice_in_dim(hi, base, e), lo.dtype)
+        return (jax.lax.dynamic_update_slice_in_dim(olo, plo, base, 0),
+                jax.lax.dynamic_update_slice_in_dim(ohi, phi, base, 0))
 
-    return jax.lax.fori_loop(0, (count + e - 1) // e, body, (lo, hi))
+    return _over(count, lo.shape[0], body, (lo, hi))
 
 
-@functools.partial(jax.jit, static_argnames=("tree", "storage", "caps"))
-def _build(tree: TreeLayout, storage: str, caps: tuple, keys, valid, coords, scale):
-    """Masks, existence, counts, and explicit boxes and smin per level 1..D, in one call.
+def _row_prefix(x):
+    """Inclusive prefix sums along axis 1 of int32 [R, P] (P small): log2(P) shifted
+    adds (XLA's cumsum over a minor axis is a windowed reduction, several times
+    slower here)."""
+    sh = 1
+    while sh < x.shape[1]:
+        x = x + jnp.pad(x[:, :-sh], ((0, 0), (sh, 0)))
+        sh *= 2
+    return x
 
-    The leaf level is reduced from the samples (scatter-min / max by cluster), the inner
-    levels from their children's boxes. Compact storage finds each entry's list index
-    from its parent's mask word (:func:`child_index`) and carries each entry's key
-    (scattered from its samples) to find its parent; the inner levels and the padding
-    loop over the existing entries only (chunks, trip count from the level's count), so
-    the work follows the number of clusters, not the static list capacity.
+
+def _tile_leaves(tile_keys, tile_valid, cap: int):
+    """The distinct leaf keys (clusters): uint32 [cap] (tile-major, ascending within a
+    tile; the first ``count`` entries are used) and count (int32).
+
+    Samples of different tiles never share a key (the key holds the tile's x and y), so
+    duplicates are found within each tile's row (at most P samples, as the paper's warp
+    per tile does): a row sort and a comparison with the left neighbour. Prefix sums
+    over the rows' counts and within the rows place each tile's clusters in the list.
+    Work and memory follow the samples; nothing is indexed by key.
+    """
+    # empty slots repeat a key of their row, so they add no distinct value
+    fill = jnp.max(jnp.where(tile_valid, tile_keys, 0), axis=1, keepdims=True)
+    # equal integers are indistinguishable, so the (faster) unstable sort suffices
+    k = jax.lax.sort(jnp.where(tile_valid, tile_keys, fill), dimension=1, is_stable=False)
+    first = jnp.concatenate([jnp.ones_like(k[:, :1], bool), k[:, 1:] != k[:, :-1]], axis=1)
+    first &= jnp.any(tile_valid, axis=1, keepdims=True)
+    within = _row_prefix(first.astype(jnp.int32))
+    per_tile = within[:, -1]
+    pos = (jnp.cumsum(per_tile) - per_tile)[:, None] + within - 1
+    leaves = jnp.zeros(cap, jnp.uint32).at[jnp.where(first, pos, cap)].set(k, mode="drop")
+    return leaves, jnp.sum(per_tile)
+
+
+def _lowest_bit(word):
+    """Index of the lowest set bit of uint32 ``word`` (!= 0)."""
+    return jax.lax.population_count((word & (~word + jnp.uint32(1))) - jnp.uint32(1))
+
+
+def _represents(tree: TreeLayout, masks, key, level: int):
+    """bool [...]: whether the leaf entries ``key`` represent their level-``level`` node:
+    the node's lowest existing child is the entry's own, at every level from ``level``
+    down to the leaves (needs the masks of levels ``level`` .. D-1)."""
+    rep = jnp.ones(key.shape, bool)
+    for lv in range(level, tree.levels):
+        word = masks[lv][(key >> tree.shift(lv)).astype(jnp.int32)]
+        rep &= ((key >> tree.shift(lv + 1)) & jnp.uint32(31)) == _lowest_bit(word)
+    return rep
+
+
+def _masks_from_leaves(tree: TreeLayout, leaves, count):
+    """Child masks (levels 0..D-1) and node counts (levels 1..D) from the distinct leaves.
+
+    Bottom-up, a bit per node set once by a scatter-add (the bits added to one word are
+    distinct, so the add is an OR): every leaf sets its bit in its level-(D-1) word;
+    a level-l node is then represented by the entry that represents its lowest existing
+    child (the lowest set bit of its word: :func:`_represents`), which sets the node's
+    bit in its parent's word. Each level is one pass over the leaf list.
+    """
+    d = tree.levels
+    masks, counts = [None] * d, [None] * d
+    for level in range(d - 1, -1, -1):
+        n_words = tree.nodes(level)
+
+        def body(base, e, ok, carry, level=level, n_words=n_words):
+            words, n = carry
+            key = jax.lax.dynamic_slice_in_dim(leaves, base, e)
+            rep = ok & _represents(tree, masks, key, level + 1)
+            node = key >> tree.shift(level + 1)
+            parent = jnp.where(rep, (node >> FANOUT_BITS).astype(jnp.int32), n_words)
+            words = words.at[parent].add(jnp.uint32(1) << (node & jnp.uint32(31)),
+                                         mode="drop")
+            return words, n + jnp.sum(rep, dtype=jnp.int32)
+
+        masks[level], counts[level] = _over(count, leaves.shape[0], body, (
+            jnp.zeros(n_words, jnp.uint32), jnp.zeros((), jnp.int32)))
+    return masks, counts
+
+
+def _starts(tree: TreeLayout, masks, counts, leaves, count):
+    """``start`` per mask level (see :class:`Hierarchy`), top-down over the existing
+    nodes: a level's nodes find their compact index from the level above
+    (:func:`child_index`), write their words' popcounts at those indices, and an
+    exclusive prefix sum over the level's ``counts`` entries gives their starts.
+    Absent nodes keep 0."""
+    d = tree.levels
+    cap = leaves.shape[0]
+    starts = [jnp.zeros(tree.nodes(0), jnp.int32)]        # the root's first child: entry 0
+    for level in range(1, d):
+        n_list = min(tree.nodes(level), cap)
+
+        def reps(base, e, ok, level=level):
+            key = jax.lax.dynamic_slice_in_dim(leaves, base, e)
+            node = key >> tree.shift(level)
+            rep = ok & _represents(tree, masks, key, level)
+            return node, rep, child_index(masks, starts, level, node)
+
+        def put(base, e, ok, pcs, level=level, n_list=n_list):
+            node, rep, idx = reps(base, e, ok)
+            pc = jax.lax.population_count(masks[level][node.astype(jnp.int32)])
+            return pcs.at[jnp.where(rep, idx, n_list)].set(pc.astype(jnp.int32), mode="drop")
+
+        pcs = _over(count, cap, put, jnp.zeros(n_list, jnp.int32))
+
+        def scan(base, e, ok, carry):
+            out, total = carry
+            v = jax.lax.dynamic_slice_in_dim(pcs, base, e)
+            c = jnp.cumsum(v)
+            return jax.lax.dynamic_update_slice_in_dim(out, total + c - v, base, 0), total + c[-1]
+
+        excl, _ = _over(counts[level - 1], n_list, scan, (pcs, jnp.zeros((), jnp.int32)))
+
+        def back(base, e, ok, start, level=level):
+            node, rep, idx = reps(base, e, ok)
+            where = jnp.where(rep, node.astype(jnp.int32), tree.nodes(level))
+            return start.at[where].set(excl[jnp.where(rep, idx, 0)], mode="drop")
+
+        starts.append(_over(count, cap, back, jnp.zeros(tree.nodes(level), jnp.int32)))
+    return starts
+
+
+@functools.partial(jax.jit, static_argnames=("tree", "storage", "caps", "list_cap"))
+def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, valid, coords,
+           scale, tile_keys, tile_valid):
+    """Masks, counts, and explicit boxes and smin per level 1..D, in one call.
+
+    The distinct leaves come from the tiles (:func:`_tile_leaves`), the masks and
+    counts from them (:func:`_masks_from_leaves`), compact storage's starts top-down
+    (:func:`_starts`). Leaf boxes are reduced from the samples (scatter-min / max to
+    each sample's compact index or, for "full", its key), inner boxes from their
+    children's boxes; compact storage carries each entry's key to find its parent, and
+    its inner levels and padding loop over the existing entries only.
     """
     d = tree.levels
     dtype = coords.dtype
     big = jnp.asarray(np.finfo(dtype).max, dtype)
-    leaf = jnp.zeros(tree.nodes(d), bool).at[jnp.where(valid, keys, tree.nodes(d))].set(
-        True, mode="drop")
-    exists = [leaf]
-    for level in range(d - 1, 0, -1):
-        exists.insert(0, jnp.any(exists[0].reshape(tree.nodes(level), -1), axis=1))
-    masks = [_pack_masks(exists[level], tree.nodes(level)) for level in range(d)]
-    # existing level-(l + 1) nodes = set bits of the level-l words (a sum over the bool
-    # arrays would read every node of the full tree: ~8 M at 1024^2, ~20 ms)
-    counts = tuple(jnp.sum(jax.lax.population_count(m).astype(jnp.int32)) for m in masks)
+    leaves, n_leaves = _tile_leaves(tile_keys, tile_valid, list_cap)
+    masks, counts = _masks_from_leaves(tree, leaves, n_leaves)
+    counts = tuple(counts)
     los, his, smins = [None] * d, [None] * d, [None] * d
     if storage == "full":
         starts = None
@@ -426,45 +573,47 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, keys, valid, coords, sca
             smins[level - 1] = jnp.min(smins[level].reshape(n, -1), axis=1)
         padded = [pad_box(lo, hi, dtype) for lo, hi in zip(los, his)]
     else:
-        starts = []
-        for level in range(d):
-            cnt = jax.lax.population_count(masks[level]).astype(jnp.int32)
-            starts.append(jnp.cumsum(cnt) - cnt)
+        starts = _starts(tree, masks, counts, leaves, n_leaves)
         cap = caps[d - 1]
         idx = jnp.where(valid, child_index(masks, starts, d, keys), cap)
         los[d - 1] = jnp.full((cap, 3), big).at[idx].min(coords, mode="drop")
         his[d - 1] = jnp.full((cap, 3), -big).at[idx].max(coords, mode="drop")
         smins[d - 1] = jnp.full((cap,), big).at[idx].min(scale, mode="drop")
-        ekey = jnp.zeros(cap, jnp.uint32).at[idx].set(keys, mode="drop")
-        for level in range(d - 1, 0, -1):
-            cap, e = caps[level - 1], min(caps[level], ENTRY_CHUNK)
 
-            def body(i, carry, level=level, e=e, cap=cap, ekey=ekey):
+        def leaf_keys(base, e, ok, ekey):
+            key = jax.lax.dynamic_slice_in_dim(leaves, base, e)
+            at = jnp.where(ok, child_index(masks, starts, d, key), cap)
+            return ekey.at[at].set(key, mode="drop")
+
+        ekey = _over(n_leaves, list_cap, leaf_keys, jnp.zeros(cap, jnp.uint32))
+        for level in range(d - 1, 0, -1):
+            cap = caps[level - 1]
+
+            def body(base, e, ok, carry, level=level, cap=cap, ekey=ekey):
                 lo, hi, sm, key = carry
-                ok = i * e + jnp.arange(e) < counts[level]
-                ck = jax.lax.dynamic_slice_in_dim(ekey, i * e, e)
-                pkey = ck >> FANOUT_BITS
+                pkey = jax.lax.dynamic_slice_in_dim(ekey, base, e) >> FANOUT_BITS
                 parent = jnp.where(ok, child_index(masks, starts, level, pkey), cap)
-                lo = lo.at[parent].min(jax.lax.dynamic_slice_in_dim(los[level], i * e, e),
+                lo = lo.at[parent].min(jax.lax.dynamic_slice_in_dim(los[level], base, e),
                                        mode="drop")
-                hi = hi.at[parent].max(jax.lax.dynamic_slice_in_dim(his[level], i * e, e),
+                hi = hi.at[parent].max(jax.lax.dynamic_slice_in_dim(his[level], base, e),
                                        mode="drop")
-                sm = sm.at[parent].min(jax.lax.dynamic_slice_in_dim(smins[level], i * e, e),
+                sm = sm.at[parent].min(jax.lax.dynamic_slice_in_dim(smins[level], base, e),
                                        mode="drop")
                 return lo, hi, sm, key.at[parent].set(pkey, mode="drop")
 
-            los[level - 1], his[level - 1], smins[level - 1], ekey = jax.lax.fori_loop(
-                0, (counts[level] + e - 1) // e, body,
+            los[level - 1], his[level - 1], smins[level - 1], ekey = _over(
+                counts[level], caps[level], body,
                 (jnp.full((cap, 3), big), jnp.full((cap, 3), -big), jnp.full((cap,), big),
                  jnp.zeros(cap, jnp.uint32)))
         padded = [_pad_live(lo, hi, n) for lo, hi, n in zip(los, his, counts)]
-    return (tuple(masks), tuple(exists), counts, None if starts is None else tuple(starts),
+    return (tuple(masks), counts, None if starts is None else tuple(starts),
             tuple(p[0] for p in padded), tuple(p[1] for p in padded), tuple(smins))
 
 
-def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact") -> Hierarchy:
-    """Build masks, existence and explicit bounds over samples (one jitted call, no host
-    round trip; ``counts`` stay on the device until read).
+def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact", *,
+          tile_keys, tile_valid) -> Hierarchy:
+    """Build masks and explicit bounds over samples (one jitted call, no host round
+    trip; ``counts`` stay on the device until read).
 
     Args:
         keys: uint32 [S] sample keys; valid: bool [S] (False for padding rows).
@@ -472,16 +621,23 @@ def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact"
         storage: "full" or "compact" (how explicit boxes are stored). Compact lists are
             sized min(nodes, samples rounded up to ``ENTRY_CHUNK``) per level (a static
             bound: no count is read back).
+        tile_keys: uint32 [tiles, P], the keys of each leaf tile's samples, and
+            tile_valid: bool [tiles, P], where there is one (the samples grouped by
+            :func:`tile_slots`' table); every valid sample must be in them.
+
+    Apart from the mask (and, for "compact", ``start``) words, which the traversal
+    indexes by node as the paper does, work and memory follow the samples and the
+    existing nodes, not the key space; "full" storage keeps the paper's full-tree boxes.
     """
+    s = -(-keys.shape[0] // ENTRY_CHUNK) * ENTRY_CHUNK     # a multiple of the chunk
+    list_cap = min(tree.nodes(tree.levels), s)               # node counts are powers of two
     if storage == "full":
         caps = tuple(tree.nodes(level) for level in range(1, tree.levels + 1))
     else:
-        # a multiple of the entry chunk (node counts are powers of two)
-        s = -(-keys.shape[0] // ENTRY_CHUNK) * ENTRY_CHUNK
         caps = tuple(min(tree.nodes(level), s) for level in range(1, tree.levels + 1))
-    masks, exists, counts, start, lo, hi, smin = _build(tree, storage, caps, keys, valid,
-                                                        coords, scale)
-    return Hierarchy(tree, masks, exists, counts, storage, start, lo, hi, smin)
+    masks, counts, start, lo, hi, smin = _build(tree, storage, caps, list_cap, keys, valid,
+                                                coords, scale, tile_keys, tile_valid)
+    return Hierarchy(tree, masks, counts, storage, start, lo, hi, smin)
 
 
 def masks_numpy(tree: TreeLayout, keys: np.ndarray) -> list[np.ndarray]:
