@@ -45,7 +45,7 @@ import numpy as np
 from ..core.capacity import bucket, pad
 
 TILE = 16           # about TILE x TILE pixels of samples per cell
-PAD_FACTOR = 64.0   # pad = PAD_FACTOR * eps * (|a| + |b|)^2 / |a x b| * 2 (1 + r^2)
+PAD_FACTOR = 16.0   # pad = PAD_FACTOR * eps * (|a| + |b|)^2 / |a x b| * 2 (1 + r^2)
 DEPTH_MARGIN = 1.0 / 64.0
 
 
@@ -56,7 +56,8 @@ class SampleGrid:
     Attributes:
         cell: int64 [S] the cell of each sample's q (Nc: q not in front of the eye).
         lo, scale: (u, v) origin and cells per unit of the grid; shape: (gx, gy).
-        zmax: float64 [Nc + 1] the farthest q depth of each cell (-inf: none).
+        zmax: float64 [Nb] the farthest q depth of each block (inf where a sample's q
+            is not in front of the eye).
         block_cell: int64 [Nb] the cell of each block of ``BLOCK`` samples.
         slot: int64 [S] each sample's place in the blocks' flat [Nb * BLOCK] layout.
         q: [Nb + 1, BLOCK, 3] the samples in blocks (working dtype; the last block and
@@ -86,7 +87,8 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGri
     """Cells and blocks of S evaluation points q [S, 3] (eye-relative, working dtype).
 
     The grid has about one cell per TILE x TILE pixels over the box of the projected q.
-    The samples of a cell fill blocks of ``BLOCK`` (the last one padded with zeros).
+    The samples of a cell, in depth order, fill blocks of ``BLOCK`` (the last one padded
+    with zeros).
     """
     uvz = _project(np.asarray(q, np.float64), basis)
     uq, vq, zq = uvz[:, 0], uvz[:, 1], uvz[:, 2]
@@ -101,12 +103,10 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGri
     n_cells = shape[0] * shape[1]
     cell = np.full(len(q), n_cells, np.int64)
     cell[good] = grid.index(vq[good], 1) * shape[0] + grid.index(uq[good], 0)
-    order = np.argsort(cell, kind="stable")
+    # by cell, then depth: a block's samples are close in depth (the depth cut per block)
+    order = np.lexsort((np.where(good, zq, np.inf), cell))
     sorted_cell = cell[order]
     cells, first, per_cell = np.unique(sorted_cell, return_index=True, return_counts=True)
-    zmax = np.full(n_cells + 1, -np.inf)
-    if len(q):
-        zmax[cells] = np.maximum.reduceat(np.where(good, zq, -np.inf)[order], first)
     nb_cell = -(-per_cell // BLOCK)
     rank = np.arange(len(order)) - np.repeat(first, per_cell)
     block_of = np.repeat(np.cumsum(nb_cell) - nb_cell, per_cell) + rank // BLOCK
@@ -115,6 +115,9 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGri
     n_blocks = int(nb_cell.sum())
     qb = np.zeros(((n_blocks + 1) * BLOCK, 3), np.asarray(q).dtype)
     qb[slot] = q
+    zb = np.full((n_blocks + 1) * BLOCK, -np.inf)
+    zb[slot] = np.where(good, zq, np.inf)
+    zmax = zb.reshape(-1, BLOCK).max(axis=1)[:n_blocks]
     return dataclasses.replace(grid, cell=cell, zmax=zmax,
                                block_cell=np.repeat(cells, nb_cell), slot=slot,
                                q=qb.reshape(n_blocks + 1, BLOCK, 3))
@@ -125,8 +128,11 @@ class ScreenBins:
     """Per-cell primitive lists (K primitives, Nc cells plus one 'all' cell).
 
     Attributes:
-        entries: int64 [E] primitive indices (into the K primitives), grouped by cell.
+        entries: int64 [E] primitive indices (into the K primitives), grouped by cell
+            (with a depth cut: in order of nearest depth within a cell).
         starts, lengths: int64 [Nc + 1] each cell's first entry and list length.
+        block_lengths: int64 [Nb] the part of its cell's list each block of the grid
+            tests (all of it, or with a depth cut the primitives not beyond the block).
         unbounded: int number of primitives whose projection is not bounded (every cell).
         tests: (sample, primitive) pairs the binned pass evaluates.
     """
@@ -134,6 +140,7 @@ class ScreenBins:
     entries: np.ndarray
     starts: np.ndarray
     lengths: np.ndarray
+    block_lengths: np.ndarray
     unbounded: int
     tests: int
 def _project(p: np.ndarray, basis) -> np.ndarray:
@@ -231,18 +238,35 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
     keys = np.concatenate(keys)
     keys = np.unique(keys) if len(boxes) > 1 else np.sort(keys)
     c, k = keys // n_prim, keys % n_prim
-    if near is not None and len(keys):
-        limit = np.full(n_cells + 1, -np.inf)
-        seen = np.isfinite(grid.zmax)
-        limit[seen] = grid.zmax[seen] * (1 + DEPTH_MARGIN)
-        keep = np.asarray(near, np.float64)[k] <= limit[c]
-        c, k = c[keep], k[keep]
+    if near is not None:
+        near = np.asarray(near, np.float64)
+        o = np.lexsort((near[k], c))
+        c, k = c[o], k[o]
     lengths = np.bincount(c, minlength=n_cells + 1).astype(np.int64)
     lengths[n_cells] = n_prim
     entries = np.concatenate([k, np.arange(n_prim)])
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
-    return ScreenBins(entries, starts, lengths, int((~bounded).sum()),
-                      int(lengths[grid.cell].sum()))
+    bc = grid.block_cell
+    if near is None:
+        block_len = lengths[bc]
+    else:
+        # entries of the block's cell whose nearest depth is within the block's limit:
+        # queries sorted after equal entries, so the count includes ties
+        limit = grid.zmax * (1 + DEPTH_MARGIN)
+        ent_c = np.concatenate([c, np.full(n_prim, n_cells)])
+        ent_z = np.concatenate([near[k], np.full(n_prim, -np.inf)])
+        allc = np.concatenate([ent_c, bc])
+        allz = np.concatenate([ent_z, limit])
+        isq = np.concatenate([np.zeros(len(ent_c), np.int8), np.ones(len(bc), np.int8)])
+        o = np.lexsort((isq, allz, allc))
+        before = np.cumsum(isq[o] == 0)                 # entries up to each position
+        qpos = np.flatnonzero(isq[o] == 1)
+        block_len = np.empty(len(bc), np.int64)
+        block_len[o[qpos] - len(ent_c)] = before[qpos] - starts[bc]
+        block_len = np.where(bc == n_cells, n_prim, block_len)
+    per_block = np.bincount(grid.slot // BLOCK, minlength=len(bc))[: len(bc)]
+    return ScreenBins(entries, starts, lengths, block_len.astype(np.int64),
+                      int((~bounded).sum()), int((block_len * per_block).sum()))
 
 
 def nearest_depth(points: np.ndarray, basis, directions: int = 0) -> np.ndarray:
@@ -271,7 +295,7 @@ def batch_arrays(grid: SampleGrid, bins: ScreenBins):
         (blocks int32 [C, N] (the padding block: the last, all zeros), start int32
         [C, N], length int32 [C, N], steps int32 [C], entries int32 [E']).
     """
-    length = bins.lengths[grid.block_cell]
+    length = bins.block_lengths
     by_len = np.argsort(-length, kind="stable")
     n_batches = bucket(-(-len(by_len) // BATCH), minimum=1, steps=8)
     n = n_batches * BATCH
