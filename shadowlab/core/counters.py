@@ -69,8 +69,8 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
             "drawn side per sample, or the side list of the sample's screen cell)"),
     Counter("cap_tests", "int", "(sample, caster) pairs the software caps passes evaluate "
             "(every caster per sample, or the caster list of the sample's screen cell)"),
-    Counter("cap_count_per_pixel", "map", "signed cap crossings the caps pass adds to each "
-            "sample's count (caps drawn by zfail, caps before the evaluation point)"),
+    Counter("cap_crossings_per_pixel", "map", "cap crossings the caps passes find at each "
+            "sample (caps drawn by zfail, caps before the evaluation point)"),
     Counter("negative_stencil", "int", "samples whose final stencil count is below zero (a "
             "leak; 0 in an exact configuration)"),
     # TOP-tree methods (psv, d_psv, d_stackless, d_hybrid; docs/psv.md)

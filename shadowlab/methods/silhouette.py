@@ -293,7 +293,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         if bias == "receiver" and (not zfail or front_cap == "infinity"):
             passes.append(("front", False, -1, False))
         cap_tests = 0
-        cap_count = np.zeros(samples.count, np.int64)
+        cap_crossings = np.zeros(samples.count, np.int64)
         if passes:
             with timer.stage("caps"):
                 tri_edges = _triangle_edges(adj, srt)
@@ -322,7 +322,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             # the kernel counts exits; caps crossed before q are entries of the ZPASS
             # count, and the part of the caps at infinity that a true cap would not draw
             sten = sten + factor * cs
-            cap_count = cap_count + factor * cs
+            cap_crossings = cap_crossings + cu
             if drawn_caps:
                 upd = upd + cu
         n_eye = 0
@@ -344,7 +344,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         "stencil_updates": int(upd.sum()),
         "stencil_updates_per_pixel": samples.scatter(upd, fill=0),
         "side_tests": int(side_tests), "cap_tests": int(cap_tests),
-        "cap_count_per_pixel": samples.scatter(cap_count, fill=0),
+        "cap_crossings_per_pixel": samples.scatter(cap_crossings, fill=0),
         "negative_stencil": int((count < 0).sum()),
         "eye_in_volumes": int(n_eye),
         "shadowed": int(shadow.sum()), "lit": int(lit.sum()),
@@ -373,7 +373,7 @@ register(
     counters=("samples", "casters", "culled_triangles", "edges", "open_edges",
               "nonmanifold_edges", "silhouette_edges", "side_quads", "culled_sides",
               "cap_triangles", "stencil_updates", "stencil_updates_per_pixel",
-              "side_tests", "cap_tests", "cap_count_per_pixel", "negative_stencil", "eye_in_volumes", "shadowed", "lit"),
+              "side_tests", "cap_tests", "cap_crossings_per_pixel", "negative_stencil", "eye_in_volumes", "shadowed", "lit"),
     stages=("samples", "adjacency", "setup", "multiplicity", "visibility", "bias", "stencil_bins", "stencil",
             "caps_bins", "caps", "eye"),
     options={
