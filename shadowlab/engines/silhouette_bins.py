@@ -87,8 +87,7 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGri
     """Cells and blocks of S evaluation points q [S, 3] (eye-relative, working dtype).
 
     The grid has about one cell per TILE x TILE pixels over the box of the projected q.
-    The samples of a cell, in depth order, fill blocks of ``BLOCK`` (the last one padded
-    with zeros).
+    The samples of a cell fill blocks of ``BLOCK`` (the last one padded with zeros).
     """
     uvz = _project(np.asarray(q, np.float64), basis)
     uq, vq, zq = uvz[:, 0], uvz[:, 1], uvz[:, 2]
@@ -103,8 +102,8 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGri
     n_cells = shape[0] * shape[1]
     cell = np.full(len(q), n_cells, np.int64)
     cell[good] = grid.index(vq[good], 1) * shape[0] + grid.index(uq[good], 0)
-    # by cell, then depth: a block's samples are close in depth (the depth cut per block)
-    order = np.lexsort((np.where(good, zq, np.inf), cell))
+    # by cell (a radix sort of small ints); within a cell in sample order
+    order = np.argsort(cell.astype(np.uint16 if n_cells < 65536 else np.int64), kind="stable")
     sorted_cell = cell[order]
     cells, first, per_cell = np.unique(sorted_cell, return_index=True, return_counts=True)
     nb_cell = -(-per_cell // BLOCK)
@@ -220,49 +219,52 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
     n_prim = len(shapes[0][0])
     n_cells, gx = grid.cells, grid.shape[0]
     boxes = [_boxes(pts, ratio, eps, basis) for pts, ratio in shapes]
+    # primitives in order of rank: nearest depth with a depth cut (so each cell's list
+    # is in depth order), else index order
+    if near is None:
+        prim = np.arange(n_prim)
+    else:
+        near = np.asarray(near, np.float64)
+        prim = np.argsort(near, kind="stable")
     # a primitive with any unbounded box goes everywhere; else each box's cell range
-    bounded = np.logical_and.reduce([ok for _, ok in boxes])
-    idx = np.flatnonzero(bounded)
-    keys = []
+    bounded = np.logical_and.reduce([ok for _, ok in boxes])[prim]
+    rank = np.flatnonzero(bounded)
+    cols, ranks = [], []
     for box, _ in boxes:
-        x0, x1 = grid.index(box[idx, 0], 0), grid.index(box[idx, 1], 0)
-        y0, y1 = grid.index(box[idx, 2], 1), grid.index(box[idx, 3], 1)
+        bx = box[prim[rank]]
+        x0, x1 = grid.index(bx[:, 0], 0), grid.index(bx[:, 1], 0)
+        y0, y1 = grid.index(bx[:, 2], 1), grid.index(bx[:, 3], 1)
         nx, ny = x1 - x0 + 1, y1 - y0 + 1
         rep = nx * ny
         off = np.arange(rep.sum()) - np.repeat(np.cumsum(rep) - rep, rep)
         nxr = np.repeat(nx, rep)
-        c = (np.repeat(y0, rep) + off // nxr) * gx + np.repeat(x0, rep) + off % nxr
-        keys.append(c * n_prim + np.repeat(idx, rep))
+        cols.append((np.repeat(y0, rep) + off // nxr) * gx + np.repeat(x0, rep) + off % nxr)
+        ranks.append(np.repeat(rank, rep))
     every = np.flatnonzero(~bounded)
-    keys.append((np.arange(n_cells)[:, None] * n_prim + every[None, :]).reshape(-1))
-    keys = np.concatenate(keys)
-    keys = np.unique(keys) if len(boxes) > 1 else np.sort(keys)
-    c, k = keys // n_prim, keys % n_prim
-    if near is not None:
-        near = np.asarray(near, np.float64)
-        o = np.lexsort((near[k], c))
-        c, k = c[o], k[o]
+    cols.append(np.repeat(np.arange(n_cells), len(every)))
+    ranks.append(np.tile(every, n_cells))
+    c, r = np.concatenate(cols), np.concatenate(ranks)
+    if len(boxes) > 1:                  # a cell met by both boxes of a primitive: once
+        key = np.unique(c * n_prim + r)
+        c, r = key // n_prim, key % n_prim
+    else:                               # by cell, then rank (radix sorts of small ints)
+        o = np.argsort(r, kind="stable")
+        o = o[np.argsort(c[o].astype(np.uint16 if n_cells < 65536 else np.int64),
+                         kind="stable")]
+        c, r = c[o], r[o]
     lengths = np.bincount(c, minlength=n_cells + 1).astype(np.int64)
     lengths[n_cells] = n_prim
-    entries = np.concatenate([k, np.arange(n_prim)])
+    entries = np.concatenate([prim[r], prim])
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
     bc = grid.block_cell
     if near is None:
         block_len = lengths[bc]
     else:
-        # entries of the block's cell whose nearest depth is within the block's limit:
-        # queries sorted after equal entries, so the count includes ties
-        limit = grid.zmax * (1 + DEPTH_MARGIN)
-        ent_c = np.concatenate([c, np.full(n_prim, n_cells)])
-        ent_z = np.concatenate([near[k], np.full(n_prim, -np.inf)])
-        allc = np.concatenate([ent_c, bc])
-        allz = np.concatenate([ent_z, limit])
-        isq = np.concatenate([np.zeros(len(ent_c), np.int8), np.ones(len(bc), np.int8)])
-        o = np.lexsort((isq, allz, allc))
-        before = np.cumsum(isq[o] == 0)                 # entries up to each position
-        qpos = np.flatnonzero(isq[o] == 1)
-        block_len = np.empty(len(bc), np.int64)
-        block_len[o[qpos] - len(ent_c)] = before[qpos] - starts[bc]
+        # entries of the block's cell within the block's depth limit: the ranks of the
+        # primitives with near <= limit are those below searchsorted(near, limit)
+        below = np.searchsorted(near[prim], grid.zmax * (1 + DEPTH_MARGIN), side="right")
+        key = np.concatenate([c * (n_prim + 1) + r, n_cells * (n_prim + 1) + np.arange(n_prim)])
+        block_len = np.searchsorted(key, bc * (n_prim + 1) + below) - starts[bc]
         block_len = np.where(bc == n_cells, n_prim, block_len)
     per_block = np.bincount(grid.slot // BLOCK, minlength=len(bc))[: len(bc)]
     return ScreenBins(entries, starts, lengths, block_len.astype(np.int64),
@@ -283,7 +285,7 @@ def nearest_depth(points: np.ndarray, basis, directions: int = 0) -> np.ndarray:
 
 #: samples per block (one list) and blocks per batch (one loop) of the binned kernels
 BLOCK = 64
-BATCH = 32
+BATCH = 128
 
 
 def batch_arrays(grid: SampleGrid, bins: ScreenBins):
