@@ -208,7 +208,7 @@ BIN_CASES = [
 ]
 
 
-@pytest.mark.parametrize("name,opts", BIN_CASES, ids=lambda c: str(c))
+@pytest.mark.parametrize("name,opts", BIN_CASES, ids=str)
 def test_screen_bins_equal_the_full_passes_per_sample(name, opts, precision):
     """bins="screen" (each sample tests the sides and caps of its screen cell) gives the
     same per-pixel cap crossings, stencil updates and lit mask as testing all of them."""

@@ -373,9 +373,10 @@ register(
     counters=("samples", "casters", "culled_triangles", "edges", "open_edges",
               "nonmanifold_edges", "silhouette_edges", "side_quads", "culled_sides",
               "cap_triangles", "stencil_updates", "stencil_updates_per_pixel",
-              "side_tests", "cap_tests", "cap_crossings_per_pixel", "negative_stencil", "eye_in_volumes", "shadowed", "lit"),
-    stages=("samples", "adjacency", "setup", "multiplicity", "visibility", "bias", "stencil_bins", "stencil",
-            "caps_bins", "caps", "eye"),
+              "side_tests", "cap_tests", "cap_crossings_per_pixel", "negative_stencil",
+              "eye_in_volumes", "shadowed", "lit"),
+    stages=("samples", "adjacency", "setup", "multiplicity", "visibility", "bias",
+            "stencil_bins", "stencil", "caps_bins", "caps", "eye"),
     options={
         "stencil": Option("zpass", "stencil counting: 'zpass' (crossings between the eye and "
                           "the sample, started at the eye's count) or 'zfail' (crossings "
