@@ -1,6 +1,7 @@
 """The Warp multiplicity kernel equals the JAX method's s_T and m bit for bit (float32),
 on the soup (non-manifold, degenerate) and on the grazing sheet, where s_T is a rounding
-decision for most triangles."""
+decision for most triangles; the Warp visibility test of the sides takes the decisions of
+``clip_visibility.side_visible`` bit for bit (float32 and float64)."""
 
 import jax.numpy as jnp
 import numpy as np
