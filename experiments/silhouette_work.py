@@ -72,7 +72,9 @@ def _sweep(cfg, points, key, repeats):
             for w in WORK:
                 row[f"{name}_{w}"] = int(res.counters[w])
             for stage in ("multiplicity", "setup", "stencil", "caps"):
-                row[f"{name}_stage_{stage}"] = float(res.timings.get(stage, 0.0))
+                # a pass's screen bins (host) count with it
+                row[f"{name}_stage_{stage}"] = float(res.timings.get(stage, 0.0)) + \
+                    float(res.timings.get(f"{stage}_bins", 0.0))
         if int(value) <= int(cfg.get("per_triangle_max", 0)) or key == "objects":
             res, t = _timed(lambda: sl.compute_shadows(scene, gbuf, light, method="zpass"),
                             repeats)

@@ -1,6 +1,7 @@
 """The Warp multiplicity kernel equals the JAX method's s_T and m bit for bit (float32),
 on the soup (non-manifold, degenerate) and on the grazing sheet, where s_T is a rounding
-decision for most triangles."""
+decision for most triangles; the Warp visibility test of the sides takes the decisions of
+``clip_visibility.side_visible`` bit for bit (float32 and float64)."""
 
 import jax.numpy as jnp
 import numpy as np
@@ -40,3 +41,52 @@ def test_multiplicity_kernel_is_bit_identical(case):
     assert np.array_equal(out["sign"], s)
     assert np.array_equal(out["m"], m)
     assert out["side_quads"] == int(np.abs(m).sum()) and out["silhouette_edges"] > 0
+
+
+def _random_sides(n, seed):
+    """Edges and point lights far outside a 60-degree view (as in test_silhouette), plus
+    the camera: many sides cross the view only through the quad's interior."""
+    cam = sl.Camera(eye=(0.3, -0.2, 0.5), target=(0.3, -0.2, -0.5), up=(0, 1, 0),
+                    fov_y_deg=60.0, near=0.1, far=100.0, resolution=(16, 16))
+    rng = np.random.default_rng(seed)
+
+    def far(r):
+        d = rng.normal(size=(n, 3))
+        return d / np.linalg.norm(d, axis=1, keepdims=True) * r + cam.eye
+
+    return far(rng.uniform(20, 60, (n, 1))), far(rng.uniform(20, 60, (n, 1))), \
+        far(rng.uniform(5, 60, (n, 1))), cam
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("mode", ["paper", "exact"])
+def test_visibility_kernel_is_bit_identical(mode, dtype):
+    """The Warp visibility test culls exactly the sides side_visible culls, in float32
+    and float64, on random far sides (point and directional lights) and on a scene's
+    silhouette records, where the method's culled_sides counter must match."""
+    from shadowlab.geometry.clip_visibility import side_visible
+    a, b, lp, cam = _random_sides(1500, 5)
+    for i, lh in enumerate([np.append(lp[k], 1.0) for k in range(300)] +
+                           [np.array([0.3, 0.9, -0.2, 0.0])]):
+        sel = slice(None) if i == 300 else slice(5 * i, 5 * i + 5)
+        ref = side_visible(a[sel], b[sel], lh, cam, mode, dtype=dtype)
+        out = ks.side_visibility_mask(a[sel], b[sel], lh, cam, mode, dtype=dtype)
+        assert np.array_equal(out["visible"], ref), i
+    # a scene: the records the method draws, with its own counter
+    scene = sl.load_scene("gate", trees=3, leaves_per_tree=40, bars=4)
+    from shadowlab.scene.procedural import default_view
+    view = default_view("gate", scene, trees=3, leaves_per_tree=40, bars=4)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(16, 16)))
+    res = sl.compute_shadows(scene, gbuf, view.light, method="silhouette", cull_sides=mode,
+                             bins="off", chunk=4)
+    adj = scene.adjacency("object", 2, np.float32)
+    _, m = _jax(scene, view.light.homogeneous, np.asarray(gbuf.camera.eye))
+    ev = adj.edge_vertices[adj.record_edge[np.flatnonzero(m)]]
+    p = adj.positions.astype(np.float64)
+    lh = view.light.homogeneous
+    ref = side_visible(p[ev[:, 0]], p[ev[:, 1]], lh, gbuf.camera, mode, dtype=dtype)
+    out = ks.side_visibility_mask(p[ev[:, 0]], p[ev[:, 1]], lh, gbuf.camera, mode, dtype=dtype)
+    assert np.array_equal(out["visible"], ref)
+    assert 0 < out["culled_sides"] < len(ev)
+    if dtype == np.float64:
+        assert out["culled_sides"] == res.counters["culled_sides"]

@@ -198,3 +198,35 @@ def test_paper_preset_runs_and_reports_the_bias_difference():
     assert res.options["preset"] == "paper"
     assert res.counters["cap_triangles"] > 0
     assert res.lit.shape == gbuf.valid.shape
+
+
+BIN_CASES = [
+    ("sphere_grid", {}),
+    ("sphere_grid", {"stencil": "zfail"}),                          # front and back caps
+    ("soup", {"stencil": "zfail", "front_cap": "infinity"}),        # caps at infinity
+    ("sheet", {"stencil": "zfail", "degenerate": "paper"}),         # eye inside the scene
+]
+
+
+@pytest.mark.parametrize("name,opts", BIN_CASES, ids=str)
+def test_screen_bins_equal_the_full_passes_per_sample(name, opts, precision):
+    """bins="screen" (each sample tests the sides and caps of its screen cell) gives the
+    same per-pixel cap crossings, stencil updates and lit mask as testing all of them."""
+    if name == "sheet":
+        scene = grazing_sheet()
+        cam = sl.Camera(eye=(0.0, 0.0, 0.0), target=(6.0, 1.0, 1.5), up=(0, 1, 0),
+                        fov_y_deg=70.0, near=0.05, far=100.0, resolution=RES)
+        gbuf, light = sl.render_gbuffer(scene, cam), sl.PointLight(position=(-2.0, 1.0, 0.3))
+    else:
+        scene, gbuf, light = _frame(name)
+    res = {b: sl.compute_shadows(scene, gbuf, light, method="silhouette", precision=precision,
+                                 bins=b, chunk=4, **opts) for b in ("off", "screen")}
+    off, on = res["off"].counters, res["screen"].counters
+    for key in off:
+        if key not in ("side_tests", "cap_tests"):
+            assert np.array_equal(np.asarray(off[key]), np.asarray(on[key])), key
+    assert np.array_equal(res["off"].lit, res["screen"].lit)
+    assert on["side_tests"] < off["side_tests"]
+    assert on["cap_tests"] < off["cap_tests"]
+    if opts.get("stencil") == "zfail":
+        assert np.count_nonzero(on["cap_crossings_per_pixel"]) > 0     # caps were crossed

@@ -72,6 +72,12 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("culled_sides", "int", "silhouette edge records whose side the visibility test "
             "culled (not drawn)"),
     Counter("cap_triangles", "int", "cap triangles drawn (front and back caps; 0 for zpass)"),
+    Counter("side_tests", "int", "(sample, side) pairs the software stencil evaluates (every "
+            "drawn side per sample, or the side list of the sample's screen cell)"),
+    Counter("cap_tests", "int", "(sample, caster) pairs the software caps passes evaluate "
+            "(every caster per sample, or the caster list of the sample's screen cell)"),
+    Counter("cap_crossings_per_pixel", "map", "cap crossings the caps passes find at each "
+            "sample (caps drawn by zfail, caps before the evaluation point)"),
     Counter("negative_stencil", "int", "samples whose final stencil count is below zero (a "
             "leak; 0 in an exact configuration)"),
     # TOP-tree methods (psv, d_psv, d_stackless, d_hybrid; docs/psv.md)

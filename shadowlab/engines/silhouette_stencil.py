@@ -77,6 +77,29 @@ def _dot(q, row, k, mul):
     return ordered_dot(q, [row[k], row[k + 1], row[k + 2]], mul)
 
 
+def _side_crossing(qv, row, m, weight, zfail, mul):
+    """Stencil and update increments (int32 [...]) of one side per sample.
+
+    qv: the samples' coordinates (3 arrays [...]); row: the side's edge-table row, m its
+    multiplicity and weight its update cost, indexable by column (scalars, or arrays
+    broadcasting against ``qv``). Shared by the full and the binned pass (same bits).
+    """
+    sa = _dot(qv, row, 0, mul) >= 0
+    sb = _dot(qv, row, 3, mul)
+    cross = sa != (sb >= 0)
+    p1 = _dot(qv, row, 6, mul) >= 0
+    qh = _dot(qv, row, 10, mul)
+    if zfail:
+        t2 = (qh - row[9]) >= 0
+        t3 = _dot(qv, row, 13, mul) >= 0
+    else:
+        t2 = (row[9] - qh) >= 0
+        t3 = jnp.broadcast_to(-row[9] >= 0, p1.shape)
+    hit = cross & (p1 == t2) & (t2 == t3)
+    sgn = jnp.where(sb >= 0, 1, -1).astype(jnp.int32) * (-1 if zfail else 1)
+    return jnp.where(hit, m * sgn, 0), jnp.where(hit, weight, 0)
+
+
 @functools.lru_cache(maxsize=None)
 def side_kernel(chunk: int, zfail: bool):
     """Jitted ``run(q, table, m, weight, zero) -> (stencil int32 [S], updates int32 [S])``.
@@ -85,7 +108,8 @@ def side_kernel(chunk: int, zfail: bool):
     records (R % chunk == 0); m int32 [R] multiplicities (0 = no side); weight int32 [R]
     the stencil updates a crossing costs (|m|, or 0 for padding). ZPASS counts crossings
     of the segment E -> q (+m sgn+(sigma_B) each), ZFAIL of the ray q -> infinity
-    (-m sgn+(sigma_B) each, the volume is left there).
+    (-m sgn+(sigma_B) each, the volume is left there). Every sample tests every side
+    (the full pass; :func:`binned_side_kernel` tests each sample's screen bin only).
     """
     @jax.jit
     def run(q, table, m, weight, zero):
@@ -98,22 +122,8 @@ def side_kernel(chunk: int, zfail: bool):
             mb = jax.lax.dynamic_slice_in_dim(m, i * chunk, chunk)
             wb = jax.lax.dynamic_slice_in_dim(weight, i * chunk, chunk)
             for j in range(chunk):
-                row = blk[j]
-                sa = _dot(qv, row, 0, mul) >= 0
-                sb = _dot(qv, row, 3, mul)
-                cross = sa != (sb >= 0)
-                p1 = _dot(qv, row, 6, mul) >= 0
-                qh = _dot(qv, row, 10, mul)
-                if zfail:
-                    t2 = (qh - row[9]) >= 0
-                    t3 = _dot(qv, row, 13, mul) >= 0
-                else:
-                    t2 = (row[9] - qh) >= 0
-                    t3 = jnp.broadcast_to(-row[9] >= 0, p1.shape)
-                hit = cross & (p1 == t2) & (t2 == t3)
-                sgn = jnp.where(sb >= 0, 1, -1).astype(jnp.int32) * (-1 if zfail else 1)
-                stencil = stencil + jnp.where(hit, mb[j] * sgn, 0)
-                updates = updates + jnp.where(hit, wb[j], 0)
+                ds, du = _side_crossing(qv, blk[j], mb[j], wb[j], zfail, mul)
+                stencil, updates = stencil + ds, updates + du
             return stencil, updates
 
         zeros = jnp.zeros(q.shape[0], jnp.int32)
@@ -121,7 +131,99 @@ def side_kernel(chunk: int, zfail: bool):
     return run
 
 
+def _binned_loop(q, blocks, start, length, steps, entries, sentinel, crossings):
+    """Sum ``crossings(qv, k)`` over per-block lists: (stencil, updates) int32 [C, N, B].
+
+    q [Nb, B, 3]: blocks of B samples; blocks int32 [C, N]: C batches of N of them
+    (the padding block repeated: its results are dropped); the samples of a block share
+    the list ``entries[start : start + length]`` (start, length int32 [C, N]; entries
+    int32 [E] primitive indices), so each step reads one primitive per block (k int32
+    [N]) and tests it against the block's B samples. steps int32 [C]: the longest list
+    of each batch (the batch loops that often; shorter lists read ``sentinel``, a row
+    that must add nothing).
+    """
+    last = entries.shape[0] - 1
+
+    def batch(args):
+        bl, st, ln, n = args
+        qb = q[bl]
+        qv = [qb[..., 0], qb[..., 1], qb[..., 2]]                        # [N, B] each
+
+        def body(j, carry):
+            k = jnp.where(j < ln, entries[jnp.minimum(st + j, last)], sentinel)
+            ds, du = crossings(qv, k)
+            return carry[0] + ds, carry[1] + du
+
+        zeros = jnp.zeros(qb.shape[:2], jnp.int32)
+        return jax.lax.fori_loop(0, n, body, (zeros, zeros))
+
+    return jax.lax.map(batch, (blocks, start, length, steps))
+
+
+def _columns(x, k):
+    """Rows k [N] of x [R, c] as c columns [c, N, 1] (broadcast over a block's samples)."""
+    return x[k].T[..., None]
+
+
+@functools.lru_cache(maxsize=None)
+def binned_side_kernel(zfail: bool):
+    """Jitted ``run(q, blocks, start, length, steps, entries, table, m, weight, zero)``
+    -> (stencil, updates) int32 [C, N, B]: :func:`side_kernel` over the per-block side
+    lists of :func:`_binned_loop` (the last table row is the sentinel: m = weight = 0)."""
+    @jax.jit
+    def run(q, blocks, start, length, steps, entries, table, m, weight, zero):
+        mul = opaque_multiplier(zero)
+
+        def crossings(qv, k):
+            return _side_crossing(qv, _columns(table, k), m[k][:, None], weight[k][:, None],
+                                  zfail, mul)
+        return _binned_loop(q, blocks, start, length, steps, entries, table.shape[0] - 1, crossings)
+    return run
+
+
 SPANS = ("behind", "eye_ray", "front")
+
+
+def _cap_crossings(qv, e0, e1, e2, t, s, span, back_caps, mul):
+    """Stencil and update increments (int32 [...]) of one caster per sample.
+
+    qv: the samples' coordinates (3 arrays [...]); e0, e1, e2: the edge-table rows of
+    the caster's sorted edges, t: its cap terms and s: its s_T, each indexable by column
+    (scalars, or arrays broadcasting against ``qv``). The same operations in the same
+    order for the full and the binned pass (so both see the same bits).
+    """
+    f1 = _dot(qv, e0, 6, mul) >= 0
+    f2 = _dot(qv, e1, 6, mul) >= 0
+    f3 = _dot(qv, e2, 6, mul) <= 0
+    through = (f1 == f2) & (f2 == f3)
+    nq = _dot(qv, t, 0, mul)
+    nlo = t[3]
+    same = ((nlo > 0) & (nq > 0)) | ((nlo < 0) & (nq < 0))   # lambda > 0
+    rest = nlo - nq                                          # lambda > 1 ...
+    far = ((rest > 0) & (nq > 0)) | ((rest < 0) & (nq < 0))
+    if span == "behind":
+        hit = far
+    elif span == "eye_ray":
+        hit = same
+    else:
+        hit = same & ~far & (rest != 0)
+    front = through & hit & (s != 0)
+    sq = jnp.where(nq > 0, 1, -1).astype(jnp.int32)
+    stencil = jnp.where(front, s * sq, 0)
+    updates = front.astype(jnp.int32)
+    if back_caps:
+        b1 = _dot(qv, e0, 13, mul) >= 0
+        b2 = _dot(qv, e1, 13, mul) >= 0
+        b3 = _dot(qv, e2, 13, mul) <= 0
+        back = (b1 == b2) & (b2 == b3) & (s * sq < 0) & (nq != 0)
+        stencil = stencil + back.astype(jnp.int32)
+        updates = updates + back.astype(jnp.int32)
+    return stencil, updates
+
+
+def _check_span(span):
+    if span not in SPANS:
+        raise ValueError(f"span must be one of {SPANS}, got {span!r}")
 
 
 @functools.lru_cache(maxsize=None)
@@ -138,10 +240,10 @@ def cap_kernel(chunk: int, span: str, back_caps: bool):
     point), "eye_ray" (lambda > 0: caps at infinity, eq. 6, drawn wherever the eye ray
     meets the triangle) or "front" (0 < lambda < 1: caps between the eye and the point,
     which hide it). A front cap crossed adds ``s_T sgn(n_T . q')``; a back cap (point
-    light, ``back_caps``) crossed adds +1.
+    light, ``back_caps``) crossed adds +1. Every sample tests every triangle (the full
+    pass; :func:`binned_cap_kernel` tests each sample's screen bin only).
     """
-    if span not in SPANS:
-        raise ValueError(f"span must be one of {SPANS}, got {span!r}")
+    _check_span(span)
 
     @jax.jit
     def run(q, edges, tri, sign, zero):
@@ -155,35 +257,31 @@ def cap_kernel(chunk: int, span: str, back_caps: bool):
             sb = jax.lax.dynamic_slice_in_dim(sign, i * chunk, chunk)
             for j in range(chunk):
                 e = eb[j]
-                s = sb[j]
-                f1 = _dot(qv, e[0], 6, mul) >= 0
-                f2 = _dot(qv, e[1], 6, mul) >= 0
-                f3 = _dot(qv, e[2], 6, mul) <= 0
-                through = (f1 == f2) & (f2 == f3)
-                nq = _dot(qv, tb[j], 0, mul)
-                nlo = tb[j][3]
-                same = ((nlo > 0) & (nq > 0)) | ((nlo < 0) & (nq < 0))   # lambda > 0
-                rest = nlo - nq                                          # lambda > 1 ...
-                far = ((rest > 0) & (nq > 0)) | ((rest < 0) & (nq < 0))
-                if span == "behind":
-                    hit = far
-                elif span == "eye_ray":
-                    hit = same
-                else:
-                    hit = same & ~far & (rest != 0)
-                front = through & hit & (s != 0)
-                sq = jnp.where(nq > 0, 1, -1).astype(jnp.int32)
-                stencil = stencil + jnp.where(front, s * sq, 0)
-                updates = updates + front.astype(jnp.int32)
-                if back_caps:
-                    b1 = _dot(qv, e[0], 13, mul) >= 0
-                    b2 = _dot(qv, e[1], 13, mul) >= 0
-                    b3 = _dot(qv, e[2], 13, mul) <= 0
-                    back = (b1 == b2) & (b2 == b3) & (s * sq < 0) & (nq != 0)
-                    stencil = stencil + back.astype(jnp.int32)
-                    updates = updates + back.astype(jnp.int32)
+                ds, du = _cap_crossings(qv, e[0], e[1], e[2], tb[j], sb[j], span,
+                                        back_caps, mul)
+                stencil, updates = stencil + ds, updates + du
             return stencil, updates
 
         zeros = jnp.zeros(q.shape[0], jnp.int32)
         return jax.lax.fori_loop(0, edges.shape[0] // chunk, body, (zeros, zeros))
+    return run
+
+
+@functools.lru_cache(maxsize=None)
+def binned_cap_kernel(span: str, back_caps: bool):
+    """Jitted ``run(q, blocks, start, length, steps, entries, edges, tri, sign, zero)``
+    -> (stencil, updates) int32 [C, N, B]: :func:`cap_kernel` over the per-block caster
+    lists of :func:`_binned_loop` (the last caster row is the sentinel: sign 0)."""
+    _check_span(span)
+
+    @jax.jit
+    def run(q, blocks, start, length, steps, entries, edges, tri, sign, zero):
+        mul = opaque_multiplier(zero)
+
+        def crossings(qv, k):
+            e = edges[k]                                                  # [N, 3, 16]
+            cols = [e[:, r].T[..., None] for r in range(3)]               # [16, N, 1]
+            return _cap_crossings(qv, *cols, _columns(tri, k), sign[k][:, None], span,
+                                  back_caps, mul)
+        return _binned_loop(q, blocks, start, length, steps, entries, edges.shape[0] - 1, crossings)
     return run

@@ -2,7 +2,11 @@
 
 A side quad of the edge AB extruded away from the light has the clip-space corners
 ``A_c = VP (A, 1)``, ``B_c = VP (B, 1)``, ``C_c = VP (A L_w - l, 0)``, ``D_c = VP (B L_w - l, 0)``
-(C and D at infinity). Two tests, vectorized over quads (NumPy float64, per frame):
+(C and D at infinity). Two tests, vectorized over quads (NumPy, per frame, in the dtype
+of the inputs: float64 in the method). Every product and sum is an explicit elementwise
+operation in a fixed order (no BLAS call, whose summation order and fused multiply-adds
+are not fixed), so ``shadowlab.kernels.silhouette.side_visibility`` repeats them and
+takes the same decisions bit for bit:
 
 - ``mode="paper"``: Algorithms 3-6 as printed: each of the four edges against the
   clip cube (Liang-Barsky in homogeneous coordinates, Algorithm 3), else the quad
@@ -29,15 +33,38 @@ CULL_MODES = ("off", "paper", "exact")
 MARGIN = 2.0 ** -10
 
 
+def _dot(x, y):
+    """``((x0 y0 + x1 y1) + x2 y2) + ...`` of column lists (arrays [N] or scalars)."""
+    total = x[0] * y[0]
+    for a, b in zip(x[1:], y[1:]):
+        total = total + a * b
+    return total
+
+
+def _cross(a, b):
+    """a x b of 3-column lists, each component ``a_i b_j - a_j b_i`` (as ``np.cross``)."""
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _cols(x):
+    return [x[..., k] for k in range(x.shape[-1])]
+
+
+def _transform(m: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``x @ m.T`` for x [N, 4] and m [4, 4], each row an ordered dot product."""
+    xc = _cols(x)
+    return np.stack([_dot(xc, list(m[i])) for i in range(4)], axis=1)
+
+
 def clip_corners(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, vp: np.ndarray):
     """Clip-space corners [N, 4] each (A_c, B_c, C_c, D_c) of the side quads of edges
-    a, b [N, 3] (world units) from the homogeneous light [4]."""
-    one = np.ones((len(a), 1))
-    zero = np.zeros((len(a), 1))
+    a, b [N, 3] (world units) from the homogeneous light [4] (all in one dtype)."""
+    one = np.ones((len(a), 1), a.dtype)
+    zero = np.zeros((len(a), 1), a.dtype)
     lw, lx = light_h[3], light_h[:3]
     corners = [np.hstack([a, one]), np.hstack([b, one]), np.hstack([a * lw - lx, zero]),
                np.hstack([b * lw - lx, zero])]
-    return [c @ vp.T for c in corners]
+    return [_transform(vp, c) for c in corners]
 
 
 def edge_visible(p: np.ndarray, q: np.ndarray, axes: int = 3, margin: float = 0.0) -> np.ndarray:
@@ -46,10 +73,11 @@ def edge_visible(p: np.ndarray, q: np.ndarray, axes: int = 3, margin: float = 0.
     ``axes=3`` is the cube |x|, |y|, |z| <= w; ``axes=2`` the pyramid |x|, |y| <= w.
     ``margin`` widens the region to |x| <= (1 + margin) w.
     """
-    left = np.zeros(len(p))
-    right = np.ones(len(p))
+    left = np.zeros(len(p), p.dtype)
+    right = np.ones(len(p), p.dtype)
     ok = np.ones(len(p), bool)
-    wp, wq = p[:, 3] * (1 + margin), q[:, 3] * (1 + margin)
+    widen = p.dtype.type(1 + margin)
+    wp, wq = p[:, 3] * widen, q[:, 3] * widen
     for i in range(axes):
         for s in (1.0, -1.0):
             m = s * p[:, i] + wp
@@ -65,9 +93,9 @@ def edge_visible(p: np.ndarray, q: np.ndarray, axes: int = 3, margin: float = 0.
 
 def diagonal_id(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, vp: np.ndarray) -> np.ndarray:
     """Algorithm 4: int [N] in {-1, 0, 1, 2}, from the side normal transformed as a vector."""
-    n = np.cross(b - a, light_h[:3] - light_h[3] * a)
-    s = np.hstack([n, np.zeros((len(n), 1))]) @ vp.T
-    u = np.floor((1 + np.sign(s[:, :3])) / math.sqrt(2)).astype(np.int64)
+    n = _cross(_cols(b - a), _cols(light_h[:3] - light_h[3] * a))
+    s = np.stack([_dot(n, list(vp[i, :3])) for i in range(3)], axis=1)
+    u = (s > 0).astype(np.int64)            # floor((1 + sgn s) / sqrt 2)
     u = np.where(u[:, 2:3] == 1, 1 - u, u)
     return u[:, 0] + 2 * u[:, 1] - 1
 
@@ -106,33 +134,39 @@ def full_visible(a: np.ndarray, f: np.ndarray, g: np.ndarray, diag: np.ndarray) 
 def corner_rays_cross(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, eye: np.ndarray,
                       rays: np.ndarray) -> np.ndarray:
     """bool [N]: some eye ray ``eye + t rays[k]`` (t > 0; rays [K, 3]) crosses the side quad
-    of edge a, b [N, 3] (float64): the line AB pierces the wedge (E, L, infinity along
-    the ray)."""
-    ap, bp = a - eye, b - eye
-    lp = light_h[:3] - light_h[3] * eye
+    of edge a, b [N, 3]: the line AB pierces the wedge (E, L, infinity along the ray)."""
+    ap, bp = _cols(a - eye), _cols(b - eye)
+    lp = list(light_h[:3] - light_h[3] * eye)
     lw = light_h[3]
     out = np.zeros(len(a), bool)
-    pi3 = -np.einsum("j,ij->i", lp, np.cross(ap, bp))
+    ab = _cross(ap, bp)
+    pi3 = -_dot(lp, ab)
+    la, lb = _cross(lp, ap), _cross(lp, bp)
+    r = _cross([lp[k] - lw * ap[k] for k in range(3)], [bp[k] - ap[k] for k in range(3)])
     for d in rays:
-        sa = np.cross(lp, ap) @ d
-        sb = np.cross(lp, bp) @ d
-        pi1 = np.cross(ap, bp) @ d
-        rho = np.cross(lp[None] - lw * ap, bp - ap) @ d
+        d = list(d)
+        sa = _dot(la, d)
+        sb = _dot(lb, d)
+        pi1 = _dot(ab, d)
+        rho = _dot(r, d)
         out |= ((sa >= 0) != (sb >= 0)) & ((pi1 >= 0) == (rho >= 0)) & ((rho >= 0) == (pi3 >= 0))
     return out
 
 
 def side_visible(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, camera, mode: str,
-                 diagonal: str = "paper") -> np.ndarray:
+                 diagonal: str = "paper", dtype=np.float64) -> np.ndarray:
     """bool [N]: keep the side quad of edge a, b [N, 3] (world units) under ``mode``
     ("paper" or "exact", see the module docstring; "off" keeps all). ``diagonal``
     ("paper" or "plane", :func:`diagonal_id_plane`) picks Algorithm 4's rule for the
-    paper's test, to tell its two defects apart."""
+    paper's test, to tell its two defects apart. ``dtype``: the arithmetic's precision
+    (the inputs, the camera's matrix, eye and corner rays are rounded to it first)."""
     if mode == "off":
         return np.ones(len(a), bool)
     if mode not in CULL_MODES:
         raise ValueError(f"cull mode must be one of {CULL_MODES}, got {mode!r}")
-    vp = camera.view_projection()
+    a, b = np.asarray(a, dtype), np.asarray(b, dtype)
+    light_h = np.asarray(light_h, dtype)
+    vp = camera.view_projection().astype(dtype)
     ac, bc, cc, dc = clip_corners(a, b, light_h, vp)
     axes, margin = (3, 0.0) if mode == "paper" else (2, MARGIN)
     vis = np.zeros(len(a), bool)
@@ -142,8 +176,8 @@ def side_visible(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, camera, mode
         pick = diagonal_id if diagonal == "paper" else diagonal_id_plane
         vis |= full_visible(ac, bc - ac, cc - ac, pick(a, b, light_h, vp))
     else:
-        vis |= corner_rays_cross(a, b, light_h, np.asarray(camera.eye, float),
-                                 screen_corner_rays(camera))
+        vis |= corner_rays_cross(a, b, light_h, np.asarray(camera.eye, dtype),
+                                 screen_corner_rays(camera).astype(dtype))
     return vis
 
 

@@ -128,5 +128,14 @@ def silhouette_multiplicity(scene, light_h, eye, **kw):
     return silhouette.multiplicity(scene, light_h, eye, **kw)
 
 
+def silhouette_visibility(a, b, light_h, camera, mode, **kw):
+    """Clip-space visibility test of silhouette side quads; see
+    ``kernels.silhouette.side_visibility_mask``."""
+    _require()
+    from . import silhouette
+    return silhouette.side_visibility_mask(a, b, light_h, camera, mode, **kw)
+
+
 __all__ = ["METHODS", "PSV_METHODS", "available", "compute_shadows", "methods", "psv_build",
-           "psv_query", "silhouette_multiplicity", "sun_disk_visibility"]
+           "psv_query", "silhouette_multiplicity", "silhouette_visibility",
+           "sun_disk_visibility"]

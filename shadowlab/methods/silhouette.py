@@ -38,7 +38,10 @@ from ..core.frame import cap_bias, precision_mode, view_samples
 from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
-from ..engines.silhouette_stencil import cap_kernel, edge_table, side_kernel, vertex_terms
+from ..engines.silhouette_bins import (batch_arrays, cap_shapes, nearest_depth, sample_grid,
+                                      screen_bins, side_shapes, unbatch)
+from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
+                                          edge_table, side_kernel, vertex_terms)
 from ..geometry.clip_visibility import CULL_MODES, side_visible
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.view import PointLight, hard_light
@@ -181,8 +184,9 @@ def eye_in_volumes(scene, eye: np.ndarray, light_h: np.ndarray, active: np.ndarr
 
 
 def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplicity, front_cap,
-               manifold, adjacency, max_opposite, degenerate, bias, cull_sides, chunk):
+               manifold, adjacency, max_opposite, degenerate, bias, cull_sides, bins, chunk):
     zfail = stencil == "zfail"
+    binned = bins == "screen"
     timer = StageTimer()
     with timer.stage("samples"):
         samples = view_samples(gbuf, light)
@@ -236,7 +240,8 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                 vis = np.ones(len(sil), bool)
             culled = int((~vis).sum())
             drawn = sil[vis]
-            r_cap = bucket(len(drawn), minimum=chunk)
+            # one padding row at least: the binned pass reads it past a list's end
+            r_cap = bucket(len(drawn) + 1, minimum=chunk)
             table = pad(etable[adj.record_edge[drawn]], r_cap, dtype=dtype)
             m_pad = pad(m_rec[drawn], r_cap, dtype=np.int32)
             w_pad = np.abs(m_pad).astype(np.int32)
@@ -251,10 +256,32 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             x = p + cut[:, None] * l_hat if at_q else p
             q_rel = jnp.asarray(samples.padded(x - eye, dtype))
         zero = opaque_zero(light_j, jnp.int32)
-        sten, upd = timer.run("stencil", side_kernel(chunk, zfail), q_rel, jnp.asarray(table),
-                              jnp.asarray(m_pad), jnp.asarray(w_pad), zero)
-        sten = np.asarray(sten)[: samples.count].astype(np.int64)
-        upd = np.asarray(upd)[: samples.count].astype(np.int64)
+        q_host = np.asarray(q_rel)[: samples.count]
+        basis = cam.basis()
+        eps_w = float(np.finfo(dtype).eps)
+        if binned:
+            with timer.stage("stencil_bins"):
+                grid = sample_grid(q_host, basis, samples.shape)
+                q_blocks = jnp.asarray(grid.q)
+        if binned and len(drawn):
+            with timer.stage("stencil_bins"):
+                ends = [verts[ev[adj.record_edge[drawn], k]] for k in range(2)]
+                shapes = side_shapes(*ends, light_rel)
+                near = None if zfail else nearest_depth(shapes[0][0], basis, directions=2)
+                sb = screen_bins(grid, shapes, eps_w, basis, near)
+                args = batch_arrays(grid, sb)
+            sten, upd = timer.run("stencil", binned_side_kernel(zfail), q_blocks,
+                                  *map(jnp.asarray, args), jnp.asarray(table),
+                                  jnp.asarray(m_pad), jnp.asarray(w_pad), zero)
+            sten, upd = (unbatch(grid, args[0], x) for x in (sten, upd))
+            side_tests = sb.tests
+        else:
+            sten, upd = timer.run("stencil", side_kernel(chunk, zfail), q_rel,
+                                  jnp.asarray(table), jnp.asarray(m_pad), jnp.asarray(w_pad),
+                                  zero)
+            sten = np.asarray(sten)[: samples.count].astype(np.int64)
+            upd = np.asarray(upd)[: samples.count].astype(np.int64)
+            side_tests = samples.count * len(drawn)
         cap_triangles = 0
         # caps: ZFAIL draws them; at the cut point q, the caps between the eye and q
         # (nonzero only where q is hidden) complete ZPASS and the caps at infinity
@@ -265,22 +292,39 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             cap_triangles = int((s_t != 0).sum()) * (2 if point else 1)
         if bias == "receiver" and (not zfail or front_cap == "infinity"):
             passes.append(("front", False, -1, False))
+        cap_tests = 0
+        cap_crossings = np.zeros(samples.count, np.int64)
         if passes:
             with timer.stage("caps"):
                 tri_edges = _triangle_edges(adj, srt)
                 keep = np.flatnonzero(s_t != 0)
-                k_cap = bucket(len(keep), minimum=chunk)
+                # one zero-sign row at least: the binned pass reads it past a list's end
+                k_cap = bucket(len(keep) + 1, minimum=chunk)
                 edges3 = jnp.asarray(pad(etable[tri_edges[keep]], k_cap, dtype=dtype))
                 terms = jnp.asarray(pad(np.asarray(cap_terms)[keep], k_cap, dtype=dtype))
                 signs = jnp.asarray(pad(s_t[keep], k_cap, dtype=np.int32))
         for span, back, factor, drawn_caps in passes:
-            cs, cu = timer.run("caps", cap_kernel(chunk, span, back), q_rel, edges3, terms,
-                               signs, zero)
+            if binned and len(keep):
+                with timer.stage("caps_bins"):
+                    shapes = cap_shapes(verts[srt[keep]], light_rel[:3] if back else None)
+                    near = nearest_depth(shapes[0][0], basis) if span == "front" else None
+                    sb = screen_bins(grid, shapes, eps_w, basis, near)
+                    args = batch_arrays(grid, sb)
+                cs, cu = timer.run("caps", binned_cap_kernel(span, back), q_blocks,
+                                   *map(jnp.asarray, args), edges3, terms, signs, zero)
+                cs, cu = (unbatch(grid, args[0], x) for x in (cs, cu))
+                cap_tests += sb.tests
+            else:
+                cs, cu = timer.run("caps", cap_kernel(chunk, span, back), q_rel, edges3,
+                                   terms, signs, zero)
+                cs, cu = np.asarray(cs)[: samples.count], np.asarray(cu)[: samples.count]
+                cap_tests += samples.count * len(keep)
             # the kernel counts exits; caps crossed before q are entries of the ZPASS
             # count, and the part of the caps at infinity that a true cap would not draw
-            sten = sten + factor * np.asarray(cs)[: samples.count]
+            sten = sten + factor * cs
+            cap_crossings = cap_crossings + cu
             if drawn_caps:
-                upd = upd + np.asarray(cu)[: samples.count]
+                upd = upd + cu
         n_eye = 0
         if not zfail:
             with timer.stage("eye"):
@@ -299,6 +343,8 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         "culled_sides": culled, "cap_triangles": int(cap_triangles),
         "stencil_updates": int(upd.sum()),
         "stencil_updates_per_pixel": samples.scatter(upd, fill=0),
+        "side_tests": int(side_tests), "cap_tests": int(cap_tests),
+        "cap_crossings_per_pixel": samples.scatter(cap_crossings, fill=0),
         "negative_stencil": int((count < 0).sum()),
         "eye_in_volumes": int(n_eye),
         "shadowed": int(shadow.sum()), "lit": int(lit.sum()),
@@ -327,9 +373,10 @@ register(
     counters=("samples", "casters", "culled_triangles", "edges", "open_edges",
               "nonmanifold_edges", "silhouette_edges", "side_quads", "culled_sides",
               "cap_triangles", "stencil_updates", "stencil_updates_per_pixel",
-              "negative_stencil", "eye_in_volumes", "shadowed", "lit"),
-    stages=("samples", "adjacency", "setup", "multiplicity", "visibility", "bias", "stencil",
-            "caps", "eye"),
+              "side_tests", "cap_tests", "cap_crossings_per_pixel", "negative_stencil",
+              "eye_in_volumes", "shadowed", "lit"),
+    stages=("samples", "adjacency", "setup", "multiplicity", "visibility", "bias",
+            "stencil_bins", "stencil", "caps_bins", "caps", "eye"),
     options={
         "stencil": Option("zpass", "stencil counting: 'zpass' (crossings between the eye and "
                           "the sample, started at the eye's count) or 'zfail' (crossings "
@@ -358,5 +405,8 @@ register(
         "cull_sides": Option("off", "visibility test of the sides: 'off', 'paper' "
                              "(Algorithms 3-6) or 'exact' (view pyramid, corrected)",
                              allowed=CULL_MODES),
+        "bins": Option("screen", "which sides and caps each sample tests: 'screen' (those "
+                       "whose padded screen box holds its point, from per-cell lists; the "
+                       "same counts) or 'off' (all of them)", allowed=("screen", "off")),
         "chunk": Option(16, "records per unrolled loop step", allowed=(4, 8, 16, 32)),
     })(silhouette)

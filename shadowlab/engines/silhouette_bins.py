@@ -1,0 +1,316 @@
+"""Screen bins for the silhouette stencil: which sides and caps each sample tests.
+
+Every crossing the software stencil counts for a sample lies on its view ray (the line
+through the eye and its evaluation point q, in front of the eye), so it projects to q's
+screen position. A sample therefore only needs the primitives whose screen projection
+covers q's:
+
+- a front cap (the triangle T) projects into the hull of T's projected vertices;
+- a back cap (point light: T projected from the light to infinity) is crossed where the
+  direction ``q'`` lies in the cone from the light through T, which projects into the
+  hull of the directions ``X - L`` (a direction projects as the point ``E + d``);
+- a side quad (edge AB extruded away from the light) is ``conv(A, B) + cone(D_A, D_B)``
+  with ``D_X = L_w X' - L'``, so it projects into the hull of A, B, D_A and D_B;
+
+each provided every point and direction lies strictly in front of the eye plane (else
+the projection is not bounded and the primitive goes into every cell).
+
+Bins are screen cells of the central projection ``(x / z, y / z)`` in the camera basis,
+about TILE x TILE pixels each, over the box of the samples' projected q; cells at the
+border extend to infinity (the cell index is clamped, which is monotone, so a box's
+clamped cell range still holds every q inside it). A primitive goes into every cell its
+padded bounding box meets. A sample whose q is not in front of the eye plane tests
+every primitive.
+
+The padding covers the rounding of the kernels' plane predicates ``q' . (a x b)`` in the
+working precision: each can take the wrong sign only within an angle of about
+``c eps (|a| + |b|)^2 / |a x b|`` of its plane, which the projection stretches by at most
+``1 + r^2`` (r: distance from the projection centre); the pad is ``PAD_FACTOR`` times
+that bound over every predicate vector pair of the primitive. Where the count only
+takes crossings between the eye and q (ZPASS sides, the caps before q), a primitive
+whose nearest point is beyond the farthest q of a cell by more than ``DEPTH_MARGIN`` of
+that depth is left out of that cell.
+
+The lists are exact CSR arrays (``starts``, ``lengths`` from the counts, never
+truncated). ``tests/test_silhouette.py`` checks that the binned passes equal the full
+passes per sample.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..core.capacity import bucket, pad
+
+TILE = 16           # about TILE x TILE pixels of samples per cell
+PAD_FACTOR = 16.0   # pad = PAD_FACTOR * eps * (|a| + |b|)^2 / |a x b| * 2 (1 + r^2)
+DEPTH_MARGIN = 1.0 / 64.0
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SampleGrid:
+    """The samples' screen cells and their blocks (S samples, Nc cells, Nb blocks).
+
+    Attributes:
+        cell: int64 [S] the cell of each sample's q (Nc: q not in front of the eye).
+        lo, scale: (u, v) origin and cells per unit of the grid; shape: (gx, gy).
+        zmax: float64 [Nb] the farthest q depth of each block (inf where a sample's q
+            is not in front of the eye).
+        block_cell: int64 [Nb] the cell of each block of ``BLOCK`` samples.
+        slot: int64 [S] each sample's place in the blocks' flat [Nb * BLOCK] layout.
+        q: [Nb + 1, BLOCK, 3] the samples in blocks (working dtype; the last block and
+            the tail of each cell's last block are zeros).
+    """
+
+    cell: np.ndarray
+    lo: tuple
+    scale: tuple
+    shape: tuple
+    zmax: np.ndarray
+    block_cell: np.ndarray
+    slot: np.ndarray
+    q: np.ndarray
+
+    @property
+    def cells(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+    def index(self, x: np.ndarray, axis: int) -> np.ndarray:
+        """int64 [...]: the clamped cell column (axis 0) or row (axis 1) of u or v x."""
+        return np.clip(np.floor((x - self.lo[axis]) * self.scale[axis]), 0,
+                       self.shape[axis] - 1).astype(np.int64)
+
+
+def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGrid:
+    """Cells and blocks of S evaluation points q [S, 3] (eye-relative, working dtype).
+
+    The grid has about one cell per TILE x TILE pixels over the box of the projected q.
+    The samples of a cell fill blocks of ``BLOCK`` (the last one padded with zeros).
+    """
+    uvz = _project(np.asarray(q, np.float64), basis)
+    uq, vq, zq = uvz[:, 0], uvz[:, 1], uvz[:, 2]
+    good = (zq > 0) & np.isfinite(uq) & np.isfinite(vq)
+    shape = (max(1, -(-image_shape[1] // TILE)), max(1, -(-image_shape[0] // TILE)))
+    lo, scale = [], []
+    for x, n in ((uq[good], shape[0]), (vq[good], shape[1])):
+        a, b = (x.min(), x.max()) if len(x) else (0.0, 0.0)
+        lo.append(a)
+        scale.append(n / (b - a) if b > a else 0.0)
+    grid = SampleGrid(None, tuple(lo), tuple(scale), shape, None, None, None, None)
+    n_cells = shape[0] * shape[1]
+    cell = np.full(len(q), n_cells, np.int64)
+    cell[good] = grid.index(vq[good], 1) * shape[0] + grid.index(uq[good], 0)
+    # by cell (a radix sort of small ints); within a cell in sample order
+    order = np.argsort(cell.astype(np.uint16 if n_cells < 65536 else np.int64), kind="stable")
+    sorted_cell = cell[order]
+    cells, first, per_cell = np.unique(sorted_cell, return_index=True, return_counts=True)
+    nb_cell = -(-per_cell // BLOCK)
+    rank = np.arange(len(order)) - np.repeat(first, per_cell)
+    block_of = np.repeat(np.cumsum(nb_cell) - nb_cell, per_cell) + rank // BLOCK
+    slot = np.empty(len(q), np.int64)
+    slot[order] = block_of * BLOCK + rank % BLOCK
+    n_blocks = int(nb_cell.sum())
+    qb = np.zeros(((n_blocks + 1) * BLOCK, 3), np.asarray(q).dtype)
+    qb[slot] = q
+    zb = np.full((n_blocks + 1) * BLOCK, -np.inf)
+    zb[slot] = np.where(good, zq, np.inf)
+    zmax = zb.reshape(-1, BLOCK).max(axis=1)[:n_blocks]
+    return dataclasses.replace(grid, cell=cell, zmax=zmax,
+                               block_cell=np.repeat(cells, nb_cell), slot=slot,
+                               q=qb.reshape(n_blocks + 1, BLOCK, 3))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ScreenBins:
+    """Per-cell primitive lists (K primitives, Nc cells plus one 'all' cell).
+
+    Attributes:
+        entries: int64 [E] primitive indices (into the K primitives), grouped by cell
+            (with a depth cut: in order of nearest depth within a cell).
+        starts, lengths: int64 [Nc + 1] each cell's first entry and list length.
+        block_lengths: int64 [Nb] the part of its cell's list each block of the grid
+            tests (all of it, or with a depth cut the primitives not beyond the block).
+        unbounded: int number of primitives whose projection is not bounded (every cell).
+        tests: (sample, primitive) pairs the binned pass evaluates.
+    """
+
+    entries: np.ndarray
+    starts: np.ndarray
+    lengths: np.ndarray
+    block_lengths: np.ndarray
+    unbounded: int
+    tests: int
+def _project(p: np.ndarray, basis) -> np.ndarray:
+    """[..., 3] (u, v, z): camera-frame projection of eye-relative points p [..., 3]."""
+    right, up, back = basis
+    x, y, z = (p[..., 0] * a[0] + p[..., 1] * a[1] + p[..., 2] * a[2]
+               for a in (right, up, -back))      # elementwise: no BLAS call on [S, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.stack([x / z, y / z, z], axis=-1)
+
+
+def _norm(x):
+    return np.sqrt(np.einsum("...i,...i->...", x, x))
+
+
+def _pair_ratio(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """[K]: (|x| + |y|)^2 / |x x y| of vector pairs [K, 3] (inf where x x y = 0)."""
+    cr = _norm(np.cross(x, y))
+    num = (_norm(x) + _norm(y)) ** 2
+    return np.where(cr > 0, num / np.where(cr > 0, cr, 1), np.inf)
+
+
+def cap_shapes(tri: np.ndarray, light: np.ndarray | None) -> list:
+    """Screen shapes of K casters: [(points [K, 3, 3], ratio [K])], the front cap and,
+    with ``light`` ([3] eye-relative point light, back caps), the back cap."""
+    t = np.asarray(tri, np.float64)
+    ratio = np.maximum.reduce([_pair_ratio(t[:, i], t[:, j]) for i, j in ((0, 1), (1, 2), (0, 2))])
+    out = [(t, ratio)]
+    if light is not None:
+        d = t - np.asarray(light, np.float64)
+        ratio = np.maximum.reduce([_pair_ratio(d[:, i], d[:, j] - d[:, i])
+                                   for i, j in ((0, 1), (1, 2), (0, 2))])
+        out.append((d, ratio))
+    return out
+
+
+def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray) -> list:
+    """Screen shape of R side quads (eye-relative edges a, b [R, 3], light [4]):
+    [(points [R, 4, 3], ratio [R])] with the ratios of every predicate of the side."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    lv = np.broadcast_to(np.asarray(light[:3], np.float64), a.shape)
+    lw = float(light[3])
+    da, db = lw * a - lv, lw * b - lv
+    h = np.cross(b, lv) + np.cross(lv, a) + lw * np.cross(a, b)
+    nh = _norm(b) * _norm(lv) + _norm(lv) * _norm(a) + abs(lw) * _norm(a) * _norm(b)
+    ratio = np.maximum.reduce([
+        _pair_ratio(lv, a), _pair_ratio(lv, b), _pair_ratio(a, b), _pair_ratio(-da, b - a),
+        np.where(_norm(h) > 0, 4 * nh / np.where(_norm(h) > 0, _norm(h), 1), np.inf)])
+    return [(np.stack([a, b, da, db], axis=1), ratio)]
+
+
+def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis):
+    """Padded screen boxes [K, 4] (u0, u1, v0, v1) of K point sets [K, P, 3] and bool [K]
+    whether each is bounded (all points strictly in front of the eye plane)."""
+    uvz = _project(pts, basis)
+    u, v, z = uvz[..., 0], uvz[..., 1], uvz[..., 2]
+    ok = np.all(z > 0, axis=1) & np.isfinite(ratio)
+    r2 = np.max(np.where(ok[:, None], u * u + v * v, 0.0), axis=1)
+    pad = PAD_FACTOR * eps * np.where(ok, ratio, 0.0) * (2.0 + 2.0 * r2)
+    box = np.stack([u.min(1) - pad, u.max(1) + pad, v.min(1) - pad, v.max(1) + pad], axis=1)
+    ok &= np.all(np.isfinite(box), axis=1)
+    return np.where(ok[:, None], box, 0.0), ok
+
+
+def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
+                near: np.ndarray | None = None) -> ScreenBins:
+    """Bin K primitives into the cells of ``grid`` (host, float64).
+
+    Args:
+        shapes: [(points [K, P, 3], ratio [K])] from :func:`cap_shapes` or
+            :func:`side_shapes`: a primitive goes into the cells of each of its boxes.
+        eps: machine epsilon of the working precision (sets the padding).
+        basis: the camera's (right, up, back) unit vectors.
+        near: [K] each primitive's nearest depth, when only crossings before q count
+            (the depth cut), else None.
+    """
+    n_prim = len(shapes[0][0])
+    n_cells, gx = grid.cells, grid.shape[0]
+    boxes = [_boxes(pts, ratio, eps, basis) for pts, ratio in shapes]
+    # primitives in order of rank: nearest depth with a depth cut (so each cell's list
+    # is in depth order), else index order
+    if near is None:
+        prim = np.arange(n_prim)
+    else:
+        near = np.asarray(near, np.float64)
+        prim = np.argsort(near, kind="stable")
+    # a primitive with any unbounded box goes everywhere; else each box's cell range
+    bounded = np.logical_and.reduce([ok for _, ok in boxes])[prim]
+    rank = np.flatnonzero(bounded)
+    cols, ranks = [], []
+    for box, _ in boxes:
+        bx = box[prim[rank]]
+        x0, x1 = grid.index(bx[:, 0], 0), grid.index(bx[:, 1], 0)
+        y0, y1 = grid.index(bx[:, 2], 1), grid.index(bx[:, 3], 1)
+        nx, ny = x1 - x0 + 1, y1 - y0 + 1
+        rep = nx * ny
+        off = np.arange(rep.sum()) - np.repeat(np.cumsum(rep) - rep, rep)
+        nxr = np.repeat(nx, rep)
+        cols.append((np.repeat(y0, rep) + off // nxr) * gx + np.repeat(x0, rep) + off % nxr)
+        ranks.append(np.repeat(rank, rep))
+    every = np.flatnonzero(~bounded)
+    cols.append(np.repeat(np.arange(n_cells), len(every)))
+    ranks.append(np.tile(every, n_cells))
+    c, r = np.concatenate(cols), np.concatenate(ranks)
+    if len(boxes) > 1:                  # a cell met by both boxes of a primitive: once
+        key = np.unique(c * n_prim + r)
+        c, r = key // n_prim, key % n_prim
+    else:                               # by cell, then rank (radix sorts of small ints)
+        o = np.argsort(r, kind="stable")
+        o = o[np.argsort(c[o].astype(np.uint16 if n_cells < 65536 else np.int64),
+                         kind="stable")]
+        c, r = c[o], r[o]
+    lengths = np.bincount(c, minlength=n_cells + 1).astype(np.int64)
+    lengths[n_cells] = n_prim
+    entries = np.concatenate([prim[r], prim])
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    bc = grid.block_cell
+    if near is None:
+        block_len = lengths[bc]
+    else:
+        # entries of the block's cell within the block's depth limit: the ranks of the
+        # primitives with near <= limit are those below searchsorted(near, limit)
+        below = np.searchsorted(near[prim], grid.zmax * (1 + DEPTH_MARGIN), side="right")
+        key = np.concatenate([c * (n_prim + 1) + r, n_cells * (n_prim + 1) + np.arange(n_prim)])
+        block_len = np.searchsorted(key, bc * (n_prim + 1) + below) - starts[bc]
+        block_len = np.where(bc == n_cells, n_prim, block_len)
+    per_block = np.bincount(grid.slot // BLOCK, minlength=len(bc))[: len(bc)]
+    return ScreenBins(entries, starts, lengths, block_len.astype(np.int64),
+                      int((~bounded).sum()), int((block_len * per_block).sum()))
+
+
+def nearest_depth(points: np.ndarray, basis, directions: int = 0) -> np.ndarray:
+    """[K]: the smallest camera depth of K point sets [K, P, 3] (eye-relative) whose
+    last ``directions`` entries are directions: -inf where one of them does not point
+    away from the eye plane (the primitive then reaches every depth)."""
+    z = _project(np.asarray(points, np.float64), basis)[..., 2]
+    n = z.shape[1] - directions
+    near = z[:, :n].min(axis=1)
+    if directions:
+        near = np.where(np.all(z[:, n:] > 0, axis=1), near, -np.inf)
+    return near
+
+
+#: samples per block (one list) and blocks per batch (one loop) of the binned kernels
+BLOCK = 64
+BATCH = 128
+
+
+def batch_arrays(grid: SampleGrid, bins: ScreenBins):
+    """The binned kernels' list arrays: blocks sorted by list length into batches of
+    ``BATCH`` (so a batch's loop count is close to each member's), capacities bucketed
+    to limit recompilation.
+
+    Returns:
+        (blocks int32 [C, N] (the padding block: the last, all zeros), start int32
+        [C, N], length int32 [C, N], steps int32 [C], entries int32 [E']).
+    """
+    length = bins.block_lengths
+    by_len = np.argsort(-length, kind="stable")
+    n_batches = bucket(-(-len(by_len) // BATCH), minimum=1, steps=8)
+    n = n_batches * BATCH
+    blocks = pad(by_len, n, fill=len(grid.block_cell), dtype=np.int32)
+    st = pad(bins.starts[grid.block_cell][by_len], n, dtype=np.int32)
+    ln = pad(length[by_len], n, dtype=np.int32).reshape(n_batches, BATCH)
+    entries = pad(bins.entries, bucket(len(bins.entries), steps=8), dtype=np.int32)
+    return (blocks.reshape(n_batches, BATCH), st.reshape(n_batches, BATCH), ln,
+            ln.max(axis=1), entries)
+
+
+def unbatch(grid: SampleGrid, blocks: np.ndarray, out) -> np.ndarray:
+    """Per-sample values [S] from a binned kernel's output [C, N, B] (blocks [C, N])."""
+    flat = np.zeros((len(grid.q), BLOCK), np.int64)
+    flat[np.asarray(blocks).reshape(-1)] = np.asarray(out).reshape(-1, BLOCK)
+    return flat.reshape(-1)[grid.slot]
