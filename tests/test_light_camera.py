@@ -194,3 +194,40 @@ def test_bad_arguments():
         fit_light_camera(PointLight((0, 9, 0)), p[:, :2])
     with pytest.raises(ValueError, match="projection"):
         fit_light_camera(PointLight((0, 9, 0)), p, projection="fisheye")
+
+
+def _ordered_reference(face, p):
+    """A Python-float loop: view then projection, each output the products rounded and
+    added left to right (k = 0..3), then the perspective divide and the texel scale."""
+    r = face.resolution[0]
+    uv, depth = [], []
+    for x in p.astype(np.float64).tolist():
+        h = x + [1.0]
+        v = [((h[0] * face.view[i, 0] + h[1] * face.view[i, 1]) + h[2] * face.view[i, 2])
+             + h[3] * face.view[i, 3] for i in range(4)]
+        c = [((v[0] * face.projection[i, 0] + v[1] * face.projection[i, 1])
+              + v[2] * face.projection[i, 2]) + v[3] * face.projection[i, 3] for i in range(4)]
+        uv.append(((c[0] / c[3] + 1.0) * 0.5 * r, (1.0 - c[1] / c[3]) * 0.5 * r))
+        depth.append(-v[2])
+    return np.array(uv), np.array(depth)
+
+
+@pytest.mark.parametrize("light,kind", CASES)
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_project_rounds_as_the_ordered_sums(light, kind, dtype):
+    """project and depth equal a scalar loop bit for bit (fixed order, no BLAS), and the
+    matrix product to rounding."""
+    p = cloud(5, n=60).astype(dtype)
+    cam = fit_light_camera(light, p, resolution=64)
+    for f in cam.faces:
+        uv, depth = f.project(p)
+        ref_uv, ref_depth = _ordered_reference(f, p)
+        assert (uv == ref_uv).all() and (depth == ref_depth).all()
+        assert (f.depth(p) == depth).all()
+        h = np.c_[p.astype(np.float64), np.ones(len(p))]
+        v = h @ f.view.T
+        clip = v @ f.projection.T
+        front = -v[:, 2] > 0
+        np.testing.assert_allclose(depth, -v[:, 2], rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(uv[front, 0], (clip[front, 0] / clip[front, 3] + 1) * 32,
+                                   rtol=1e-11, atol=1e-9)

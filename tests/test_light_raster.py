@@ -276,3 +276,13 @@ def test_jax_raster_equals_the_numpy_enumeration(kind):
             assert np.array_equal(np.asarray(fr.covered)[:n], cov)
             for got, want in ((fr.lo, lo), (fr.hi, hi), (fr.centre, centre)):
                 np.testing.assert_allclose(np.asarray(got)[:n], want, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("n,size", [(0, 16), (7, 6 * 16 * 16), (500, 64), (500, 2000)])
+def test_unique_keys_equals_numpy_unique(n, size):
+    """Both branches (occupancy table, sort) against np.unique."""
+    key = np.random.default_rng(n + size).integers(0, size, n)
+    keys, inv = lr.unique_keys(key, size)
+    ref, ref_inv = np.unique(key, return_inverse=True)
+    assert np.array_equal(keys, ref) and np.array_equal(inv, ref_inv.ravel())
+    assert inv.dtype == np.int64 and np.array_equal(keys[inv], key)

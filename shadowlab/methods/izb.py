@@ -218,7 +218,7 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
             cam = fit_camera(scene, samples, light, resolution, projection)
             r = cam.resolution[0]
             face, uv, key, delta_p, depth_p = lr.project_points(cam, samples.position, True)
-            keys_all, inv_all = np.unique(key, return_inverse=True)
+            keys_all, inv_all = lr.unique_keys(key, len(cam.faces) * r * r)
             setups = [lr.setup_face(f, scene.triangles) for f in cam.faces]
             tw = float(lr.texel_world_size(cam, face=face, depth=depth_p).min())
             extent = np.concatenate([scene.triangles.reshape(-1, 3), samples.position])
@@ -237,7 +237,7 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
                     c_cam = fit_camera(scene, samples, light, resolution * csm_scale,
                                        projection, padding=csm_scale)
                     c_face, _, c_key, c_delta = lr.project_points(c_cam, samples.position)
-                    c_keys = np.unique(c_key, return_inverse=True)
+                    c_keys = lr.unique_keys(c_key, len(c_cam.faces) * c_cam.resolution[0] ** 2)
                     c_setups = [lr.setup_face(f, scene.triangles) for f in c_cam.faces]
                     c_tau = coverage_margin + lr.rounding_margin(dtype, extent, tw / csm_scale)
                     c_m = _delta_slope(c_cam, c_delta) * m_world
@@ -386,14 +386,6 @@ def receiver_points(samples, light_h: np.ndarray, eps: float) -> np.ndarray:
     return p + step[:, None] * l
 
 
-def _axis_depth(face, points: np.ndarray) -> np.ndarray:
-    """float64 [N]: depth of world ``points`` [N, 3] along ``face``'s view axis, as
-    ``LightFace.project`` gives it (to the last bits: no matrix product, whose threaded
-    BLAS call dominated the CSM stage under load; the CSM margin covers the rounding)."""
-    v = face.view[2]
-    return -(points[:, 0] * v[0] + points[:, 1] * v[1] + points[:, 2] * v[2] + v[3])
-
-
 def light_area(setup: lr.FaceSetup) -> np.ndarray:
     """float64 [T]: projected area (texels) of the triangles in front of the light on a
     face (|D| / (2 w0 w1 w2)); 0 for the others."""
@@ -417,10 +409,14 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
     ``keys_inv``: the sorted texel keys [K] of the samples and each sample's index [S]."""
     r = cam.resolution[0]
     q = receiver_points(samples, light_h, eps)
-    delta_q = np.empty(samples.count)
-    for f in np.unique(face):
-        sel = face == f
-        delta_q[sel] = lr.face_depth(cam.faces[f], _axis_depth(cam.faces[f], q[sel]))
+    # q's depth along the face axis only (LightFace.depth rounds as project does)
+    if len(cam.faces) == 1:
+        delta_q = lr.face_depth(cam.faces[0], cam.faces[0].depth(q))
+    else:
+        delta_q = np.empty(samples.count)
+        for f in np.unique(face):
+            sel = face == f
+            delta_q[sel] = lr.face_depth(cam.faces[f], cam.faces[f].depth(q[sel]))
     keys, inv = keys_inv
     select = [ok_tri & s.ok & s.front & (light_area(s) >= min_area) for s in setups]
     s_cap = bucket(samples.count)

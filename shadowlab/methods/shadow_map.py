@@ -108,7 +108,7 @@ def shadow_map(scene, gbuf, light, *, precision, shadow_eps, resolution, project
                 look = np.stack(looks, axis=1)
             else:
                 look = key[:, None]
-            keys = np.unique(look)
+            keys = lr.unique_keys(look.ravel(), len(cam.faces) * r * r)[0]
             setups = [lr.setup_face(f, scene.triangles) for f in cam.faces]
             ok = np.any(np.stack([s.ok for s in setups]), axis=0)
         with timer.stage("raster"):

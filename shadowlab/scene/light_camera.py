@@ -23,7 +23,11 @@ inside [0, R) x [0, R) with ``near <= depth <= far``. ``casters`` (points betwee
 the fitted points and the light, e.g. the scene's vertices or its bounding-box
 corners) only move ``near`` towards the light so that they are not clipped.
 
-All computations are float64, whatever the dtype of the input points.
+All computations are float64, whatever the dtype of the input points. Points are
+transformed by :func:`affine_rows`, elementwise sums in a fixed order, not by matrix
+products: the rounding does not depend on BLAS (whose threads, competing for a loaded
+machine, made a [N, 4] x [4, 4] product ten times slower than the arithmetic), and the
+fit, :meth:`LightFace.project` and :meth:`LightFace.depth` round alike.
 """
 
 from __future__ import annotations
@@ -72,6 +76,40 @@ def box_corners(bounds: np.ndarray) -> np.ndarray:
     b = np.asarray(bounds, dtype=np.float64)
     i = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)])
     return b[i, [0, 1, 2]]
+
+
+def columns(points: np.ndarray) -> np.ndarray:
+    """float64 [3, N]: the coordinates of world ``points`` [N, 3] as contiguous rows."""
+    return np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
+
+
+def affine_rows(cols: np.ndarray, m: np.ndarray, rows) -> list[np.ndarray]:
+    """Rows ``rows`` of ``m`` [>=3, 4] applied to the points (x, y, z, 1) given as
+    ``cols`` [3, N] (:func:`columns`): float64 [N] each,
+    ``((x m[i,0] + y m[i,1]) + z m[i,2]) + m[i,3]``.
+
+    Each product is rounded, then added in that fixed order (k = 0..3; the fourth
+    coordinate is 1, so its product is exact). Terms with a zero coefficient are left
+    out: they add a signed zero, which can only change the sign of a zero result.
+    """
+    m = np.asarray(m, dtype=np.float64)
+    out = []
+    for i in rows:
+        acc = None
+        for k in range(3):
+            c = float(m[i, k])
+            if c == 0.0:
+                continue
+            if acc is None:
+                acc = cols[k] * c
+            else:
+                acc += cols[k] * c
+        if acc is None:
+            acc = np.full(cols.shape[1], float(m[i, 3]))
+        elif m[i, 3] != 0.0:
+            acc += float(m[i, 3])
+        out.append(acc)
+    return out
 
 
 def _up_helper(forward: np.ndarray) -> np.ndarray:
@@ -143,14 +181,19 @@ class LightFace:
             points outside the grid fall outside [0, R); meaningless for points with
             depth <= 0 on a perspective face), depth float64 [N] world units.
         """
-        p = np.asarray(points, dtype=np.float64)
-        h = np.concatenate([p, np.ones((len(p), 1))], axis=1)
-        v = h @ self.view.T
-        clip = v @ self.projection.T
-        ndc = clip[:, :2] / clip[:, 3:4]
+        vx, vy, vz = affine_rows(columns(points), self.view, (0, 1, 2))
+        # the view is rigid (row 3 is (0, 0, 0, 1)): view-space w is exactly 1
+        cx, cy, cw = affine_rows(np.stack([vx, vy, vz]), self.projection, (0, 1, 3))
         r = self.resolution[0]
-        uv = np.stack([(ndc[:, 0] + 1.0) * 0.5 * r, (1.0 - ndc[:, 1]) * 0.5 * r], axis=1)
-        return uv, -v[:, 2]
+        uv = np.empty((len(vx), 2))
+        uv[:, 0] = (cx / cw + 1.0) * 0.5 * r
+        uv[:, 1] = (1.0 - cy / cw) * 0.5 * r
+        return uv, -vz
+
+    def depth(self, points: np.ndarray) -> np.ndarray:
+        """float64 [N]: the depth of world ``points`` [N, 3] along the view axis (world
+        units), bit for bit the depth of :meth:`project`, without the texel coordinates."""
+        return -affine_rows(columns(points), self.view, (2,))[0]
 
     def unproject(self, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """float64 [N, 3]: the world points with texel coordinates ``uv`` [N, 2] and
@@ -214,6 +257,9 @@ class LightCamera:
             face's view axis. On a cube, points on a seam (|d_i| = |d_j|) may round a
             few ulps outside their face and are clamped onto its border.
         """
+        if len(self.faces) == 1:
+            uv, depth = self.faces[0].project(points)
+            return np.zeros(len(uv), dtype=np.int32), uv, depth
         p = np.asarray(points, dtype=np.float64)
         face = self.face_of(p)
         uv = np.empty((len(p), 2))
@@ -268,16 +314,16 @@ def fit_light_camera(light: Light, points: np.ndarray, casters: np.ndarray | Non
         if projection not in ("auto", "orthographic"):
             raise ValueError(f"a directional light has an orthographic light camera, "
                              f"not {projection!r}")
-        face = _fit_orthographic(light.direction, p, c, r, grow)
+        face = _fit_orthographic(light.direction, columns(p), c, r, grow)
         return LightCamera("orthographic", (face,), light, (r, r))
     if projection == "orthographic":
         raise ValueError("a point light has a perspective or cube light camera, "
                          "not 'orthographic'")
-    d = p - light.position
-    if not np.all(np.any(d != 0, axis=1)):
+    cols = columns(p)
+    if not np.all(np.any(cols != np.asarray(light.position)[:, None], axis=0)):
         raise ValueError("a light camera point coincides with the point light")
     if projection != "cube":
-        face = _fit_perspective(light.position, p, c, r, grow, max_fov_deg)
+        face = _fit_perspective(light.position, cols, c, r, grow, max_fov_deg)
         if face is not None:
             return LightCamera("perspective", (face,), light, (r, r))
         if projection == "perspective":
@@ -286,53 +332,58 @@ def fit_light_camera(light: Light, points: np.ndarray, casters: np.ndarray | Non
     return LightCamera("cube", _fit_cube(light.position, p, c, r), light, (r, r))
 
 
-def _margin(scale: float, points: np.ndarray) -> float:
+def _margin(scale: float, cols: np.ndarray) -> float:
     """A small positive depth margin, world units, relative to the fitted size."""
     if scale > 0:
         return 1e-3 * scale
-    return 1e-3 * max(1.0, float(np.abs(points).max()))
+    return 1e-3 * max(1.0, float(np.abs(cols).max()))
 
 
-def _fit_orthographic(direction, p, c, r, grow) -> LightFace:
+def _fit_orthographic(direction, cols, c, r, grow) -> LightFace:
+    """``cols`` [3, N]: the points' coordinates (:func:`columns`); ``c`` [M, 3]."""
     fwd = np.asarray(direction, dtype=np.float64)
     up = _up_helper(fwd)
-    basis = look_at(np.zeros(3), fwd, up)[:3, :3]  # rows: right, up, back
-    xy = p @ basis[:2].T
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    basis = np.zeros((3, 4))
+    basis[:2, :3] = look_at(np.zeros(3), fwd, up)[:2, :3]  # rows: right, up
+    basis[2, :3] = fwd
+    x, y, along = affine_rows(cols, basis, (0, 1, 2))
+    lo = np.array([x.min(), y.min()])
+    hi = np.array([x.max(), y.max()])
     centre = (lo + hi) / 2
     half = float((hi - lo).max()) / 2
-    along = p @ fwd
-    near_along = float(min(along.min(), (c @ fwd).min() if len(c) else np.inf))
+    c_along = affine_rows(columns(c), basis, (2,))[0] if len(c) else along[:0]
+    near_along = float(min(along.min(), c_along.min() if len(c) else np.inf))
     far_along = float(along.max())
-    margin = _margin(max(far_along - near_along, 2 * half), p)
+    margin = _margin(max(far_along - near_along, 2 * half), cols)
     if half == 0:
         half = margin
     half *= grow
-    eye = basis[0] * centre[0] + basis[1] * centre[1] + fwd * (near_along - margin)
+    eye = basis[0, :3] * centre[0] + basis[1, :3] * centre[1] + fwd * (near_along - margin)
     near, far = 0.5 * margin, far_along - near_along + 1.5 * margin
     view = look_at(eye, eye + fwd, up)
     proj = orthographic(-half, half, -half, half, near, far)
     return LightFace(view, proj, (r, r), near, far, eye, fwd, up, None, half, "ortho")
 
 
-def _fit_perspective(position, p, c, r, grow, max_fov_deg) -> LightFace | None:
-    lo, hi = p.min(axis=0), p.max(axis=0)
+def _fit_perspective(position, cols, c, r, grow, max_fov_deg) -> LightFace | None:
+    """``cols`` [3, N]: the points' coordinates (:func:`columns`); ``c`` [M, 3]."""
+    lo, hi = cols.min(axis=1), cols.max(axis=1)
     if np.all((lo <= position) & (position <= hi)):
         return None  # the box contains the light
     target = (lo + hi) / 2
     fwd = (target - position) / np.linalg.norm(target - position)
     up = _up_helper(fwd)
     view = look_at(position, target, up)
-    v = p @ view[:3, :3].T + view[:3, 3]
-    depth = -v[:, 2]
+    vx, vy, vz = affine_rows(cols, view, (0, 1, 2))   # as LightFace.project rounds them
+    depth = -vz
     if depth.min() <= 0:
         return None
-    tan_max = float((np.abs(v[:, :2]).max(axis=1) / depth).max())
+    tan_max = float((np.maximum(np.abs(vx), np.abs(vy)) / depth).max())
     tan_half = tan_max * grow if tan_max > 0 else 1e-6
     fov = 2 * math.degrees(math.atan(tan_half))
     if fov > max_fov_deg:
         return None
-    cdepth = -(c @ view[2, :3] + view[2, 3]) if len(c) else depth[:0]
+    cdepth = -affine_rows(columns(c), view, (2,))[0] if len(c) else depth[:0]
     cdepth = cdepth[cdepth > 0]
     near = 0.5 * float(min(depth.min(), cdepth.min() if len(cdepth) else np.inf))
     far = float(depth.max()) * (1 + 1e-3)

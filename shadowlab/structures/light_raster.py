@@ -441,6 +441,18 @@ def rasterize(camera: LightCamera, triangles: np.ndarray, mode: str,
     return tri[cov], key[cov], setups
 
 
+def unique_keys(key: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(key, return_inverse=True)`` of texel keys ``key`` [N] in [0, size):
+    the sorted distinct keys [K] and each key's index [N] (int64). Counts occupancy in a
+    table of ``size`` entries instead of sorting when that table is small (size <= 4 N)."""
+    key = np.asarray(key, dtype=np.int64)
+    if size > 4 * len(key):
+        keys, inv = np.unique(key, return_inverse=True)
+        return keys, inv.astype(np.int64, copy=False)
+    present = np.bincount(key, minlength=size) > 0
+    return np.flatnonzero(present), (np.cumsum(present) - 1)[key]
+
+
 def rounding_margin(dtype, points: np.ndarray, texel_world: float) -> float:
     """Texels covering ``dtype`` rounding of world coordinates of magnitude ``points``:
     ``64 eps max|x| / texel_world`` (``texel_world``: the smallest world size of a texel
@@ -458,10 +470,13 @@ def project_points(camera: LightCamera, points: np.ndarray, with_depth: bool = F
         with ``with_depth`` the depth float64 [N] along the face's axis (world units).
     """
     face, uv, depth = camera.to_texels(points)
-    delta = np.empty(len(face))
-    for f in np.unique(face):
-        sel = face == f
-        delta[sel] = face_depth(camera.faces[f], depth[sel])
+    if len(camera.faces) == 1:
+        delta = face_depth(camera.faces[0], depth)
+    else:
+        delta = np.empty(len(face))
+        for f in np.unique(face):
+            sel = face == f
+            delta[sel] = face_depth(camera.faces[f], depth[sel])
     out = face, uv, texel_keys(face, uv, camera.resolution[0]), delta
     return out + (depth,) if with_depth else out
 
