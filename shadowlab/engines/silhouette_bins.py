@@ -176,18 +176,22 @@ def cap_shapes(tri: np.ndarray, light: np.ndarray | None) -> list:
     return out
 
 
-def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray) -> list:
+def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, q_min: float) -> list:
     """Screen shape of R side quads (eye-relative edges a, b [R, 3], light [4]):
-    [(points [R, 4, 3], ratio [R])] with the ratios of every predicate of the side."""
+    [(points [R, 4, 3], ratio [R])] with the ratios of every predicate of the side.
+
+    ``q_min``: the smallest |q'| of the samples. The edge test ``(q' - A') . r`` rounds
+    by about eps |q' - A'| |r| (1 + ratio of r's pair), an angle of at most
+    eps (1 + |A'| / |q'|) (1 + that ratio) seen from the eye.
+    """
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     lv = np.broadcast_to(np.asarray(light[:3], np.float64), a.shape)
     lw = float(light[3])
     da, db = lw * a - lv, lw * b - lv
-    h = np.cross(b, lv) + np.cross(lv, a) + lw * np.cross(a, b)
-    nh = _norm(b) * _norm(lv) + _norm(lv) * _norm(a) + abs(lw) * _norm(a) * _norm(b)
+    r_ratio = _pair_ratio(-da, b - a)
     ratio = np.maximum.reduce([
-        _pair_ratio(lv, a), _pair_ratio(lv, b), _pair_ratio(a, b), _pair_ratio(-da, b - a),
-        np.where(_norm(h) > 0, 4 * nh / np.where(_norm(h) > 0, _norm(h), 1), np.inf)])
+        _pair_ratio(lv, a), _pair_ratio(lv, b), _pair_ratio(a, b), r_ratio,
+        4 * (1 + _norm(a) / max(q_min, np.finfo(np.float64).tiny)) * (1 + r_ratio)])
     return [(np.stack([a, b, da, db], axis=1), ratio)]
 
 
