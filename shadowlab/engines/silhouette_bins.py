@@ -176,18 +176,31 @@ def cap_shapes(tri: np.ndarray, light: np.ndarray | None) -> list:
     return out
 
 
-def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray) -> list:
+def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
+                q_min: float, q_max: float) -> list:
     """Screen shape of R side quads (eye-relative edges a, b [R, 3], light [4]):
-    [(points [R, 4, 3], ratio [R])] with the ratios of every predicate of the side."""
+    [(points [R, 4, 3], ratio [R])] with the ratios of every predicate of the side.
+
+    The edge test ``pi2 = (q' - A') . r`` (``r = (L' - L_w A') x (B' - A')``) bounds the
+    shape only through the side plane's vanishing line: beyond it q lies on the eye's side
+    of the plane, at least as far from it as the eye. It rounds by about
+    eps |q' - A'| |r| (1 + ratio of r's pair), so it needs a pad (an angle of
+    eps (1 + |A'| / |q'|) (1 + that ratio) from the eye) only for sides whose plane passes
+    within that distance of the eye; ``eps`` is the working precision's, ``q_min`` and
+    ``q_max`` bound the samples' |q'|.
+    """
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     lv = np.broadcast_to(np.asarray(light[:3], np.float64), a.shape)
     lw = float(light[3])
     da, db = lw * a - lv, lw * b - lv
-    h = np.cross(b, lv) + np.cross(lv, a) + lw * np.cross(a, b)
-    nh = _norm(b) * _norm(lv) + _norm(lv) * _norm(a) + abs(lw) * _norm(a) * _norm(b)
+    r = np.cross(-da, b - a)
+    r_ratio = _pair_ratio(-da, b - a)
+    slack = PAD_FACTOR * eps * (1 + r_ratio)
+    eye_near = np.abs(np.einsum("ij,ij->i", a, r)) <= slack * (_norm(a) + q_max) * _norm(r)
+    pi2 = 8 * (1 + _norm(a) / max(q_min, np.finfo(np.float64).tiny)) * (1 + r_ratio)
     ratio = np.maximum.reduce([
-        _pair_ratio(lv, a), _pair_ratio(lv, b), _pair_ratio(a, b), _pair_ratio(-da, b - a),
-        np.where(_norm(h) > 0, 4 * nh / np.where(_norm(h) > 0, _norm(h), 1), np.inf)])
+        _pair_ratio(lv, a), _pair_ratio(lv, b), _pair_ratio(a, b), r_ratio,
+        np.where(eye_near, pi2, 0.0)])
     return [(np.stack([a, b, da, db], axis=1), ratio)]
 
 

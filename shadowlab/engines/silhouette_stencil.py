@@ -9,10 +9,13 @@ vertex ``X' = X - E``, the light ``L' = l - L_w E``, an evaluation point ``q' = 
 - side of edge AB (A < B): the segment E -> q crosses it iff the line AB pierces the
   triangle (L, E, q), i.e. A and B lie on opposite sides of the plane (E, q, L)
   (``sigma_X = q' . (L' x X')``) and the three edge tests ``pi1 = q' . (A' x B')``,
-  ``pi2 = D - q' . h`` and ``pi3 = -D`` (``D = L' . (A' x B')``,
-  ``h = B' x L' + L' x A' + L_w A' x B'``) agree; the ray q -> infinity (ZFAIL) crosses
+  ``pi2 = (q' - A') . r`` and ``pi3 = -D`` (``D = L' . (A' x B')``,
+  ``r = (L' - L_w A') x (B' - A')``) agree; the ray q -> infinity (ZFAIL) crosses
   it iff AB pierces (q, q + infinity d, L): tests ``pi1``, ``-pi2`` and
-  ``rho2 = q' . ((L' - L_w A') x (B' - A'))``;
+  ``rho2 = q' . r``. (``pi2`` equals ``D + q' . r``; that expanded form, with r written
+  as ``-(B' x L' + L' x A' + L_w A' x B')``, cancels two products of size |L'| |X'| and
+  took the wrong sign in float32 2e-3 world units off a side on ``terrain``, far outside
+  any rounding of the inputs: docs/silhouette.md);
 - front cap (a triangle T): the line E-q passes through T iff ``pi1`` of T's three
   edges, with the parities (+, +, -) of its sorted edges (lo, mid), (mid, hi),
   (lo, hi), agree; the crossing is beyond q (true cap) or beyond E (cap at infinity,
@@ -37,7 +40,7 @@ import jax.numpy as jnp
 from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
 
 #: columns of an edge table row
-EDGE_COLUMNS = 16     # L'xA (3), L'xB (3), A'xB' (3), D (1), h (3), r (3)
+EDGE_COLUMNS = 16     # L'xA (3), L'xB (3), A'xB' (3), D (1), A' (3), r (3)
 
 
 @jax.jit
@@ -54,7 +57,7 @@ def edge_table(a, b, la, lb, light):
     """Per edge (A < B, eye-relative [E, 3]) the predicate vectors, [E, 16].
 
     ``la``/``lb`` [E, 3] are rows of :func:`vertex_terms` gathered at A and B (so every
-    edge through a vertex sees the same bits). Columns: L'xA', L'xB', A'xB', D, h, r (see
+    edge through a vertex sees the same bits). Columns: L'xA', L'xB', A'xB', D, A', r (see
     the module docstring).
     """
     mul = opaque_multiplier(opaque_zero(light))
@@ -64,12 +67,9 @@ def edge_table(a, b, la, lb, light):
     bv = [b[:, k] for k in range(3)]
     ab = cross3(av, bv, mul)
     d = ordered_dot(lv, ab, mul)
-    bl = cross3(bv, lv, mul)
-    la_ = cross3(lv, av, mul)
-    h = [(bl[k] + la_[k]) + mul(lw, ab[k]) for k in range(3)]
     r = cross3([lv[k] - mul(lw, av[k]) for k in range(3)], [bv[k] - av[k] for k in range(3)],
                mul)
-    cols = [la[:, 0], la[:, 1], la[:, 2], lb[:, 0], lb[:, 1], lb[:, 2], *ab, d, *h, *r]
+    cols = [la[:, 0], la[:, 1], la[:, 2], lb[:, 0], lb[:, 1], lb[:, 2], *ab, d, *av, *r]
     return jnp.stack(cols, axis=1)
 
 
@@ -88,12 +88,14 @@ def _side_crossing(qv, row, m, weight, zfail, mul):
     sb = _dot(qv, row, 3, mul)
     cross = sa != (sb >= 0)
     p1 = _dot(qv, row, 6, mul) >= 0
-    qh = _dot(qv, row, 10, mul)
+    # pi2 relative to A: rounding scales with |q' - A'|, not with |q'| |A'|
+    pi2 = ordered_dot([qv[k] - row[10 + k] for k in range(3)],
+                      [row[13], row[14], row[15]], mul)
     if zfail:
-        t2 = (qh - row[9]) >= 0
+        t2 = -pi2 >= 0
         t3 = _dot(qv, row, 13, mul) >= 0
     else:
-        t2 = (row[9] - qh) >= 0
+        t2 = pi2 >= 0
         t3 = jnp.broadcast_to(-row[9] >= 0, p1.shape)
     hit = cross & (p1 == t2) & (t2 == t3)
     sgn = jnp.where(sb >= 0, 1, -1).astype(jnp.int32) * (-1 if zfail else 1)

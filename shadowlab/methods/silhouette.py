@@ -266,7 +266,9 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         if binned and len(drawn):
             with timer.stage("stencil_bins"):
                 ends = [verts[ev[adj.record_edge[drawn], k]] for k in range(2)]
-                shapes = side_shapes(*ends, light_rel)
+                q_len = np.sqrt(np.einsum("ij,ij->i", q_host, q_host))
+                shapes = side_shapes(*ends, light_rel, eps_w, q_len.min(initial=np.inf),
+                                     q_len.max(initial=0.0))
                 near = None if zfail else nearest_depth(shapes[0][0], basis, directions=2)
                 sb = screen_bins(grid, shapes, eps_w, basis, near)
                 args = batch_arrays(grid, sb)
