@@ -171,13 +171,13 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
     words_per_round = DEFER_WORDS
 
     @jax.jit
-    def run(tiles, offsets, counts, trips, pix, tri, tri_id, entries, entry_half, eps):
+    def run(tiles, offsets, counts, trips, pix, tri, entries, entry_half, eps):
         """Visibility of the pixels of ``tiles`` [G].
 
         pix: per-tile pixel arrays, component axis first: pos [3, Nt, 256], frame
         [9, Nt, 256] (rows e1, e2, w), nrm [3, Nt, 256] (light frame), s, zl [Nt, 256],
-        id, half [Nt, 256] int32, rel [Nt, 256] bool. tri [9, Tg] vertex coordinates,
-        tri_id [Tg]; entries/entry_half [L]: the flat tile lists (tile t's at
+        half [Nt, 256] int32, rel [Nt, 256] bool. tri [9, Tg] vertex coordinates;
+        entries/entry_half [L]: the flat tile lists (tile t's at
         offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256], the
         counts of tests, rasterized and near-clamp triangles [G, 256] (int32) and the
         rasterizer lanes executed (int32 []: steps x lanes, summed over the steps).
@@ -186,7 +186,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         fr = [pix["frame"][i][tiles] for i in range(9)]
         nrm = tuple(pix["nrm"][i][tiles] for i in range(3))
         s, zl = pix["s"][tiles], pix["zl"][tiles]
-        pid, phalf, rel = pix["id"][tiles], pix["half"][tiles], pix["rel"][tiles]
+        phalf, rel = pix["half"][tiles], pix["rel"][tiles]
         dtype = s.dtype
         shape = s.shape
         # one opaque zero (NaN eps spoils everything anyway) for the sun_disk primitives'
@@ -274,10 +274,15 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             idx = jnp.where(live, offsets[:, None] + slot[None, :], 0)
             return live, entries[idx], entry_half[idx]
 
-        def visit(live, ent, eh, vid, k, alive):
+        def visit(live, ent, eh, k, alive):
             """Entry k of the chunk on every pixel: geometry, act and use [G, 256]."""
             in_half = ((eh[:, k, None] >> phalf) & 1) == 1                  # [G, 256]
-            act = live[:, k, None] & rel & in_half & (vid[:, k, None] != pid) & alive
+            # no skip of the pixel's own triangle by index: ``gbuf.triangle`` numbers
+            # the triangles of the scene the G-buffer was rendered from, not of
+            # ``scene`` (a caster-culled subset renumbers them, and the skip then hit
+            # a true occluder); the own triangle (and any coplanar one) fails the
+            # quick reject's height test, as in the reference
+            act = live[:, k, None] & rel & in_half & alive
             d = light_frame([tri[i][ent[:, k], None] for i in range(9)], px_all)
             qx, qy = projected(d, px_all)
             quick, near = quick_reject(d, qx, qy)
@@ -288,10 +293,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             counts) per entry k, counts = (tests, rasterized, near clamps) int32 [G, 256]
             with entry k added (``use``: it passed the quick reject)."""
             live, ent, eh = chunk_entries(j)
-            vid = tri_id[ent]
             tests, rast, clamp = counts
             for k in range(chunk):
-                _, qx, qy, act, use, near = visit(live, ent, eh, vid, k, alive)
+                _, qx, qy, act, use, near = visit(live, ent, eh, k, alive)
                 tests = tests + act.astype(jnp.int32)
                 rast = rast + use.astype(jnp.int32)
                 clamp = clamp + (use & near).astype(jnp.int32)
@@ -584,7 +588,6 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
         pos = gbuf.position.reshape(-1, 3)[flat]                 # [Nt, 256, 3]
         nrm = gbuf.normal.reshape(-1, 3)[flat]
         depth = gbuf.depth.reshape(-1)[flat]
-        tid = gbuf.triangle.reshape(-1)[flat]
         valid = gbuf.valid.reshape(-1)[flat] & inside
         frame, s, z_light, sin_a = pixel_frames(pos.reshape(-1, 3), nrm.reshape(-1, 3), light,
                                                 disk_scale)
@@ -626,20 +629,17 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
                    "nrm": np.moveaxis(nrm_l, -1, 0), "s": s,
                    "zl": np.where(np.isfinite(z_light), z_light, 0.0)}
             pix = {k: jnp.asarray(np.ascontiguousarray(v, dtype)) for k, v in pix.items()}
-            pix["id"] = jnp.asarray(np.where(valid, tid, -2).astype(np.int32))
             pix["half"] = jnp.asarray(half.astype(np.int32))
             pix["rel"] = jnp.asarray(relevant)
             tri_g_arr = np.zeros((bucket(max(n_gather, 1), minimum=64, steps=8), 3, 3), dtype)
             tri_g_arr[:n_gather] = tri_all[gathered]
-            tri_id = np.full(len(tri_g_arr), -1, np.int32)
-            tri_id[:n_gather] = gathered
             L = bucket(max(len(tri_g), 1), minimum=1024, steps=8)
             ent = np.zeros(L, np.int32)
             ent[:len(tri_g)] = tri_g
             ehalf = np.zeros(L, np.int32)
             ehalf[:len(tri_g)] = lists.half_bits
             tri_soa = np.ascontiguousarray(tri_g_arr.reshape(-1, 9).T)
-            args_common = (pix, jnp.asarray(tri_soa), jnp.asarray(tri_id), jnp.asarray(ent),
+            args_common = (pix, jnp.asarray(tri_soa), jnp.asarray(ent),
                            jnp.asarray(ehalf), jnp.asarray(dtype(eps)))
             kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode, defer,
                                   compact)
