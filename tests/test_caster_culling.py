@@ -109,3 +109,17 @@ def test_off_keeps_everything_and_a_bad_mode_is_refused():
     assert cc.cull_casters(scene, gbuf, view.light, "off").keep.all()
     with pytest.raises(sl.methods.MethodError, match="cull_casters"):
         sl.compute_shadows(scene, gbuf, view.light, method="brute_force", cull_casters="yes")
+
+
+def test_the_gbuffer_triangle_ids_follow_the_subset():
+    scene = procedural.make("city", blocks=2, posts=3)
+    view = procedural.default_view("city", scene, blocks=2, posts=3)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(24, 24)))
+    keep = np.ones(scene.num_triangles, bool)
+    keep[::3] = False
+    sub, g = cc.subset_scene(scene, keep), cc.subset_gbuffer(gbuf, keep)
+    hit = gbuf.triangle >= 0
+    kept_hit = hit & keep[np.clip(gbuf.triangle, 0, None)]
+    assert kept_hit.any() and (hit & ~kept_hit).any()
+    np.testing.assert_array_equal(sub.faces[g.triangle[kept_hit]], scene.faces[gbuf.triangle[kept_hit]])
+    assert np.all(g.triangle[~kept_hit] == -1)

@@ -20,7 +20,8 @@ cone). Two exact tests remove triangles that meet no such set for any sample:
   it through a light-facing triangle, wherever it starts; ``front_face_culled``).
 
 The cull returns a :class:`~shadowlab.scene.mesh.Scene.subset` that keeps the parent's
-bounds (so the shadow offset, a fraction of the diagonal, is unchanged). With casters
+bounds (so the shadow offset, a fraction of the diagonal, is unchanged), and the
+G-buffer with its triangle ids renumbered to match (:func:`subset_gbuffer`). With casters
 removed the lit mask of an exact method is unchanged (tested per method): every removed
 triangle contributes nothing to any sample's count or visibility. Work counters
 (tests, volumes, edges) fall; that is the point. Receivers need no separate step: every
@@ -198,6 +199,18 @@ def cull_casters(scene, gbuf, light, mode: str, soft: bool = False) -> CasterCul
     return CasterCull(keep, int(outside.sum()) - int(keep[outside].sum()), averted)
 
 
+def subset_gbuffer(gbuf, keep: np.ndarray):
+    """``gbuf`` with its triangle ids [H, W] renumbered into the subset of ``keep`` (bool
+    [T]): a kept triangle gets its index among the kept ones, a culled one -1 (as an
+    invalid pixel), so a method that reads ``gbuf.triangle`` sees the scene it is given."""
+    if keep.all():
+        return gbuf
+    new_id = np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int32)
+    tri = np.asarray(gbuf.triangle)
+    renumbered = np.where(tri >= 0, new_id[np.clip(tri, 0, None)], -1).astype(tri.dtype)
+    return dataclasses.replace(gbuf, triangle=renumbered)
+
+
 def subset_scene(scene, keep: np.ndarray):
     """``scene.subset(keep)``, cached per scene and mask (a static frame reuses it, and so
     the per-scene caches of the subset, such as its edge adjacency)."""
@@ -215,4 +228,5 @@ def subset_scene(scene, keep: np.ndarray):
 
 
 __all__ = ["CULL_MODES", "CULL_SIDES", "CasterCull", "PAD", "cull_casters",
-           "front_face_culled", "hull_planes", "hull_points", "outside_hull", "subset_scene"]
+           "front_face_culled", "hull_planes", "hull_points", "outside_hull", "subset_gbuffer",
+           "subset_scene"]

@@ -196,22 +196,24 @@ def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
     info.check_light(light)
     opts = info.resolve_options(options)
     local = localize(scene, gbuf, light, info.frame)
-    casters, culled = _cull(info, local, opts["cull_casters"])
-    result = info.fn(casters, local.gbuf, local.light, **info.call_options(opts))
+    casters, gbuf, culled = _cull(info, local, opts["cull_casters"])
+    result = info.fn(casters, gbuf, local.light, **info.call_options(opts))
     check_result(info, result)
     return stamp(culled(result), method, opts)
 
 
 def _cull(info: MethodInfo, local, mode: str):
     """The shared caster culling stage (``geometry.caster_culling``) on the frame-local
-    scene: (the scene the method gets, a function that adds the stage's counters and
-    time to a result; identity when ``mode`` is off)."""
+    scene: (the scene and G-buffer the method gets, its triangle ids renumbered; a
+    function that adds the stage's counters and time to a result, the identity when
+    ``mode`` is off)."""
     if mode == "off":
-        return local.scene, lambda result: result
+        return local.scene, local.gbuf, lambda result: result
     t0 = time.perf_counter()
     cull = caster_culling.cull_casters(local.scene, local.gbuf, local.light, mode,
                                        soft=info.soft)
     casters = caster_culling.subset_scene(local.scene, cull.keep)
+    gbuf = caster_culling.subset_gbuffer(local.gbuf, cull.keep)
     seconds = time.perf_counter() - t0
 
     def add(result):
@@ -220,7 +222,7 @@ def _cull(info: MethodInfo, local, mode: str):
                               "culled_casters_hull": cull.hull,
                               "culled_casters_averted": cull.averted},
             timings={**result.timings, "cull_casters": seconds})
-    return casters, add
+    return casters, gbuf, add
 
 
 def run_kernel(scene, gbuf, light, method: str, **options):
@@ -235,8 +237,8 @@ def run_kernel(scene, gbuf, light, method: str, **options):
     options = dict(options)
     mode = info.model.validate_one("cull_casters", options.pop("cull_casters", "off"))
     local = localize(scene, gbuf, light, info.frame)
-    casters, culled = _cull(info, local, mode)
-    result = culled(info.kernel(casters, local.gbuf, local.light, **options))
+    casters, gbuf, culled = _cull(info, local, mode)
+    result = culled(info.kernel(casters, gbuf, local.light, **options))
     check_counters(result.counters)
     return result
 
