@@ -55,21 +55,25 @@ def run(cfg: dict) -> dict:
     scenes = list(cfg.get("scenes") or ["soup", "atrium"])
     cull_wrong = np.zeros((len(scenes), len(CULLS)), np.int64)
     culled = np.zeros_like(cull_wrong)
+    cull_changed = np.zeros_like(cull_wrong)    # valid pixels whose lit value culling changed
     for s, name in enumerate(scenes):
         params = dict(cfg.get("params", {}).get(name, {}))
         sc = sl.load_scene(name, **params)
         view = default_view(name, sc, **params)
         gb = sl.render_gbuffer(sc, view.camera.replace(resolution=res))
         tr = sl.reference_shadows(sc, gb, view.light)
+        unculled = sl.compute_shadows(sc, gb, view.light, method="silhouette", stencil="zfail",
+                                      cull_sides="off").lit
         for c, mode in enumerate(CULLS):
             r = sl.compute_shadows(sc, gb, view.light, method="silhouette", stencil="zfail",
                                    cull_sides=mode)
             cull_wrong[s, c] = int(((r.lit != tr) & gb.valid).sum())
+            cull_changed[s, c] = int(((r.lit != unculled) & gb.valid).sum())
             culled[s, c] = r.counters["culled_sides"]
     return {"rules": np.asarray(RULES), "stencils": np.asarray(STENCILS), "wrong": wrong,
             "negative": negative, "errors": errors, "valid": gbuf.valid,
             "scenes": np.asarray(scenes), "culls": np.asarray(CULLS),
-            "cull_wrong": cull_wrong, "culled_sides": culled}
+            "cull_wrong": cull_wrong, "cull_changed": cull_changed, "culled_sides": culled}
 
 
 def plot(arrays: dict):
@@ -97,9 +101,11 @@ def plot(arrays: dict):
 
 
 def check(arrays: dict, cfg: dict) -> None:
-    """The sorted rule and the exact side test are exact."""
+    """The sorted rule is exact, and the exact side test never changes a pixel (its
+    ZFAIL result equals the unculled one; mismatches against the reference that the
+    unculled ZFAIL run has too are not the culling's, so they are not checked here)."""
     assert np.all(arrays["wrong"][0] == 0) and np.all(arrays["negative"][0] == 0)
-    assert np.all(arrays["cull_wrong"][:, 0] == 0)
+    assert np.all(arrays["cull_changed"][:, 0] == 0), arrays["cull_changed"]
     assert np.array_equal((arrays["errors"] != 0).sum(axis=(1, 2)), arrays["wrong"][:, 0])
 
 
@@ -111,9 +117,10 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
          "measured": {str(r): [int(x) for x in w[i]] for i, r in enumerate(arrays["rules"])},
          "holds": bool(np.all(w[0] == 0) and w[1:].sum() > 0)},
         {"claim": "the paper's side test never culls a needed side (ZFAIL)",
-         "measured": {str(s): int(arrays["cull_wrong"][i, 1])
+         "measured": {str(s): f"{int(arrays['cull_changed'][i, 1])} px changed by culling "
+                      f"({int(arrays['cull_wrong'][i, 1])} wrong)"
                       for i, s in enumerate(arrays["scenes"])},
-         "holds": bool(np.all(arrays["cull_wrong"][:, 1] == 0))},
+         "holds": bool(np.all(arrays["cull_changed"][:, 1] == 0))},
     ]
 
 
