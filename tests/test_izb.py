@@ -246,3 +246,28 @@ def test_chunked_pair_kernel_equals_one_chunk(monkeypatch):
     assert len(unexplained_mismatches(scene, gbuf, light, many.lit, truth)) == 0
     for k in one.counters:
         assert np.array_equal(np.asarray(one.counters[k]), np.asarray(many.counters[k])), k
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_a_cut_that_reaches_the_light_is_never_culled(precision):
+    """A point light just above the ground: the receiver cut of the grazing ground
+    samples (eps / n.l) reaches the light, so the reference lights them whatever stands
+    in between. The CSM must not cull them behind the wall that fully covers their
+    texels (it did: q on the light's plane had an infinite light-space depth; found on
+    the full-size izb_passes run)."""
+    ground = prim.quad_grid((-6, 6), (-6, 6), 0.0, cells=4)
+    wall = (np.array([[3.0, -1.0, -6.0], [3.0, -1.0, 6.0], [3.0, 3.0, 6.0], [3.0, 3.0, -6.0]]),
+            np.array([[0, 1, 2], [0, 2, 3]]))
+    v, f = prim.merge([ground, wall])
+    scene = Scene(v, f, np.zeros(len(f)), ("g",), "reach")
+    light = sl.PointLight(position=(5.0, 1e-5, 0.0))
+    cam = sl.Camera(eye=(-4.0, 6.0, 0.0), target=(1.0, 0.0, 0.0), up=(0, 1, 0),
+                    fov_y_deg=50.0, near=0.1, far=100.0, resolution=(24, 24))
+    gbuf = sl.render_gbuffer(scene, cam)
+    truth = sl.reference_shadows(scene, gbuf, light)
+    res = sl.compute_shadows(scene, gbuf, light, method="izb", prepass="csm",
+                             precision=precision, resolution=256)
+    assert truth[gbuf.valid].any()                       # lit through the wall by the cut
+    assert res.counters["csm_texels"] > 0                # the wall covers texels fully
+    assert res.counters["csm_false_shadows"] == 0
+    np.testing.assert_array_equal(res.lit[gbuf.valid], truth[gbuf.valid])

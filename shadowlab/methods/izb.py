@@ -372,18 +372,24 @@ def _empty_counters(shape) -> dict:
             "csm_false_shadows": 0}
 
 
-def receiver_points(samples, light_h: np.ndarray, eps: float) -> np.ndarray:
+def receiver_points(samples, light_h: np.ndarray, eps: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """float64 [S, 3]: q = p + (eps / (n . l)) l, the receiver-biased point on the ray from
     each sample p to the light (l the unit direction to the light), where the exact
-    methods' receiver bias puts the crossing (``shadowlab.core.frame.bias_terms``)."""
+    methods' receiver bias puts the crossing (``shadowlab.core.frame.bias_terms``); and
+    bool [S], the samples whose cut reaches a point light (q is the light itself: lit by
+    the reference's criterion, whatever lies in front of the light)."""
     p = samples.position
     to_light = light_h[:3] - light_h[3] * p
     l = to_light / np.linalg.norm(to_light, axis=1, keepdims=True)
     cos = np.maximum(np.einsum("ij,ij->i", samples.normal, l), 1e-12)
     step = eps / cos
+    reaches = np.zeros(len(p), bool)
     if light_h[3] != 0:   # never past the light
-        step = np.minimum(step, np.linalg.norm(to_light, axis=1))
-    return p + step[:, None] * l
+        dist = np.linalg.norm(to_light, axis=1)
+        reaches = step >= dist
+        step = np.minimum(step, dist)
+    return p + step[:, None] * l, reaches
 
 
 def light_area(setup: lr.FaceSetup) -> np.ndarray:
@@ -408,7 +414,7 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
     """bool [S] samples culled by the conservative shadow map, and its full texels.
     ``keys_inv``: the sorted texel keys [K] of the samples and each sample's index [S]."""
     r = cam.resolution[0]
-    q = receiver_points(samples, light_h, eps)
+    q, reaches = receiver_points(samples, light_h, eps)
     # q's depth along the face axis only (LightFace.depth rounds as project does)
     if len(cam.faces) == 1:
         delta_q = lr.face_depth(cam.faces[0], cam.faces[0].depth(q))
@@ -417,6 +423,9 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
         for f in np.unique(face):
             sel = face == f
             delta_q[sel] = lr.face_depth(cam.faces[f], cam.faces[f].depth(q[sel]))
+    # A cut that reaches the light puts q on the light's plane (delta -> +-inf): such a
+    # sample is lit (the reference's tfar = max(length - cut, 0)), so it is never culled.
+    delta_q = np.where(reaches | ~np.isfinite(delta_q), -np.inf, delta_q)
     keys, inv = keys_inv
     select = [ok_tri & s.ok & s.front & (light_area(s) >= min_area) for s in setups]
     s_cap = bucket(samples.count)
