@@ -36,6 +36,7 @@ import itertools
 
 import numpy as np
 
+from ..reference.raycast import _orthonormal
 from ..scene.caches import per_scene_cache
 from ..scene.view import DirectionalLight, PointLight, SphereLight, hard_light
 
@@ -89,13 +90,6 @@ def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """float64 [8, 3]: the corners of the box [lo, hi]."""
     return np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
                      for i, j, k in itertools.product((0, 1), repeat=3)])
-
-
-def _orthonormal(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a = np.array([1.0, 0.0, 0.0]) if abs(w[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(w, a)
-    u /= np.linalg.norm(u)
-    return u, np.cross(w, u)
 
 
 def hull_points(lo: np.ndarray, hi: np.ndarray, light, reach: float, soft: bool) -> np.ndarray:

@@ -145,8 +145,10 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
         options = dict(config.methods.options.get(name, {}))
         ev = evaluate(scene, gbuf, view.light, name, options, reference=refs, repeats=repeats)
         options.setdefault("shadow_eps", eps)
-        dynamic = dynamic_seconds(scene, lambda: compute_shadows(
-            scene, gbuf, view.light, method=name, **options), repeats)
+        # soft methods are compared at equal error, not by ratio: no dynamic frame for them
+        dynamic = [] if ev.kind is MethodKind.SOFT else dynamic_seconds(
+            scene, lambda: compute_shadows(scene, gbuf, view.light, method=name, **options),
+            repeats)
         stages = {k: v for k, v in ev.timings.items() if not k.endswith("_compile")}
         compile_s = {k: v for k, v in ev.timings.items() if k.endswith("_compile")}
         counters = ev.result.scalar_counters()
@@ -154,9 +156,10 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
                "compile_seconds": ev.compile_seconds,
                "median_seconds": ev.seconds,
                "ratio_to_reference": ev.seconds / ref_median if ref_median > 0 else None,
-               "dynamic_median_seconds": float(np.median(dynamic)), "dynamic_runs": dynamic,
+               "dynamic_median_seconds": float(np.median(dynamic)) if dynamic else None,
+               "dynamic_runs": dynamic,
                "dynamic_ratio": float(np.median(dynamic)) / out["reference"][
-                   "dynamic_median_seconds"],
+                   "dynamic_median_seconds"] if dynamic else None,
                "counters": counters, "error": ev.error}
         if ev.kind is MethodKind.SOFT:
             curve = out["soft_reference"]["curve"]
