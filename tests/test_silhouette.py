@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import shadowlab as sl
+from shadowlab.engines.silhouette_bins import cone_facets
 from shadowlab.geometry.clip_visibility import side_visible
 from shadowlab.methods.silhouette import record_multiplicity, triangle_signs
 from shadowlab.scene.procedural import default_view, grazing_sheet
@@ -19,7 +20,8 @@ RES = (32, 32)
 @functools.lru_cache(maxsize=None)
 def _frame(name, directional=False):
     params = {"soup": {"count": 120}, "sphere_grid": {"n": 2, "triangles_per_sphere": 200},
-              "gate": {"trees": 3, "leaves_per_tree": 40, "bars": 4}}[name]
+              "gate": {"trees": 3, "leaves_per_tree": 40, "bars": 4},
+              "atrium": {"bays": 4, "segments": 12, "banners": 12}}[name]
     scene = sl.load_scene(name, **params)
     view = default_view(name, scene, **params)
     light = view.light
@@ -206,6 +208,9 @@ BIN_CASES = [
     ("sphere_grid", {"stencil": "zfail"}),                          # front and back caps
     ("soup", {"stencil": "zfail", "front_cap": "infinity"}),        # caps at infinity
     ("sheet", {"stencil": "zfail", "degenerate": "paper"}),         # eye inside the scene
+    # eye and light inside: sides and back caps reach behind the eye plane (cut by
+    # their cones to the samples' box)
+    ("atrium", {"stencil": "zfail"}),
 ]
 
 
@@ -231,6 +236,26 @@ def test_screen_bins_equal_the_full_passes_per_sample(name, opts, precision):
     assert on["cap_tests"] < off["cap_tests"]
     if opts.get("stencil") == "zfail":
         assert np.count_nonzero(on["cap_crossings_per_pixel"]) > 0     # caps were crossed
+
+
+def test_cone_facets_hold_the_cone_and_cut_what_lies_outside():
+    """Every non-negative combination of the generators satisfies every facet; a
+    direction outside a pointed cone (a combination with a negative weight, tested
+    exactly in float64 against the generators' own plane signs) fails one."""
+    rng = np.random.default_rng(7)
+    for g in (3, 4):
+        gen = rng.normal(size=(400, g, 3)) + [0.0, 0.0, 1.5]   # pointed and not
+        normals, valid = cone_facets(gen)
+        inside = np.einsum("kg,kgd->kd", rng.uniform(0, 1, (400, g)), gen)
+        dots = np.einsum("kpd,kd->kp", normals, inside)
+        assert np.all(~valid | (dots >= -1e-9 * np.linalg.norm(inside, axis=1)[:, None]))
+        if g == 3:             # a simplicial cone: outside iff a barycentric weight < 0
+            w = rng.uniform(-1, 1, (400, 3))
+            d = np.einsum("kg,kgd->kd", w, gen)
+            out = (w < -1e-3).any(axis=1) & (np.abs(np.linalg.det(gen)) > 1e-2)
+            dots = np.einsum("kpd,kd->kp", normals, d)
+            assert np.all(valid[np.abs(np.linalg.det(gen)) > 1e-2])
+            assert np.all((dots < 0).any(axis=1)[out])
 
 
 @functools.lru_cache(maxsize=None)

@@ -12,8 +12,17 @@ covers q's:
 - a side quad (edge AB extruded away from the light) is ``conv(A, B) + cone(D_A, D_B)``
   with ``D_X = L_w X' - L'``, so it projects into the hull of A, B, D_A and D_B;
 
-each provided every point and direction lies strictly in front of the eye plane (else
-the projection is not bounded and the primitive goes into every cell).
+and in every case the primitive's view rays fill the cone from the eye spanned by those
+points and directions (its *generators*: ``X'`` for a point, ``D`` for a direction).
+The hull bounds the projection when every generator lies strictly in front of the eye
+plane; otherwise (a primitive reaching behind the eye) the projection is not bounded.
+
+Beyond the box, each bin test uses the cone itself: its facet planes through the eye
+(pairs of generators with every other generator on one side) are half-planes in screen
+space, and a primitive enters only the cells that meet every one of them, padded. A
+cone that reaches behind the eye is cut to the samples' screen box that way instead of
+going into every cell; a long thin side, whose box covers many cells, enters only those
+along it. A primitive whose padded cone misses the samples' box enters no cell.
 
 Bins are screen cells of the central projection ``(x / z, y / z)`` in the camera basis,
 about TILE x TILE pixels each, over the box of the samples' projected q; cells at the
@@ -30,6 +39,12 @@ that bound over every predicate vector pair of the primitive. Where the count on
 takes crossings between the eye and q (ZPASS sides, the caps before q), a primitive
 whose nearest point is beyond the farthest q of a cell by more than ``DEPTH_MARGIN`` of
 that depth is left out of that cell.
+
+Each facet plane is shifted outwards by the same pad (the region it bounds then holds
+every direction within the rounding angle of the cone), and a generator pair whose
+plane is ill-conditioned (nearly parallel generators) is not used: dropping a facet only
+enlarges the region. Cells are tested as their rectangles, border cells extending to
+infinity.
 
 The lists are exact CSR arrays (``starts``, ``lengths`` from the counts, never
 truncated). ``tests/test_silhouette.py`` checks that the binned passes equal the full
@@ -76,6 +91,27 @@ class SampleGrid:
     @property
     def cells(self) -> int:
         return self.shape[0] * self.shape[1]
+
+    def box_corners(self) -> np.ndarray:
+        """[4, 2] (u, v) corners of the samples' screen box (all projected q lie in it)."""
+        hi = [lo + (n / sc if sc > 0 else 0.0) for lo, n, sc in zip(self.lo, self.shape,
+                                                                       self.scale)]
+        margin = [1e-9 * (1.0 + abs(lo) + abs(h)) for lo, h in zip(self.lo, hi)]
+        u = (self.lo[0] - margin[0], hi[0] + margin[0])
+        v = (self.lo[1] - margin[1], hi[1] + margin[1])
+        return np.array([(x, y) for x in u for y in v])
+
+    def cell_edges(self, axis: int) -> tuple[np.ndarray, np.ndarray]:
+        """float64 [n] the lower and upper bound of each cell column (axis 0) or row
+        (axis 1), widened by a millionth of a cell; the border cells reach infinity."""
+        n, lo, sc = self.shape[axis], self.lo[axis], self.scale[axis]
+        i = np.arange(n, dtype=np.float64)
+        if sc > 0:
+            lower, upper = lo + (i - 1e-6) / sc, lo + (i + 1 + 1e-6) / sc
+        else:
+            lower, upper = np.full(n, lo), np.full(n, lo)
+        lower[0], upper[-1] = -np.inf, np.inf
+        return lower, upper
 
     def index(self, x: np.ndarray, axis: int) -> np.ndarray:
         """int64 [...]: the clamped cell column (axis 0) or row (axis 1) of u or v x."""
@@ -204,17 +240,109 @@ def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
     return [(np.stack([a, b, da, db], axis=1), ratio)]
 
 
-def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis):
-    """Padded screen boxes [K, 4] (u0, u1, v0, v1) of K point sets [K, P, 3] and bool [K]
-    whether each is bounded (all points strictly in front of the eye plane)."""
+#: a generator pair spans a facet plane only if |x x y| >= this times |x| |y|
+FACET_CONDITION = 1e-6
+#: slack (an angle, radians) of the one-side test of the other generators
+FACET_SLACK = 1e-9
+
+
+def cone_facets(gen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Facet half-spaces of the cones spanned by K generator sets [K, G, 3] (float64).
+
+    Returns unit normals [K, P, 3] (P = G (G - 1) / 2, one per generator pair) and bool
+    [K, P] whether that pair's plane is a facet: every generator lies on its non-negative
+    side (to ``FACET_SLACK``), so the half-space ``n . d >= 0`` holds the whole cone.
+    The intersection of the facets equals the cone when it is pointed and solid, and
+    holds it in every case (no facet at all: the whole space).
+    """
+    gen = np.asarray(gen, np.float64)
+    g_len = _norm(gen)
+    unit = gen / np.where(g_len > 0, g_len, 1.0)[..., None]
+    pairs = [(i, j) for i in range(gen.shape[1]) for j in range(i + 1, gen.shape[1])]
+    normals, valid = [], []
+    for i, j in pairs:
+        n = np.cross(unit[:, i], unit[:, j])
+        n_len = _norm(n)
+        ok = n_len >= FACET_CONDITION
+        n = n / np.where(ok, n_len, 1.0)[:, None]
+        side = np.einsum("kd,kgd->kg", n, unit)
+        pos = np.all(side >= -FACET_SLACK, axis=1)
+        neg = np.all(side <= FACET_SLACK, axis=1)
+        normals.append(np.where((pos | ~neg)[:, None], n, -n))
+        valid.append(ok & (pos | neg))
+    return np.stack(normals, axis=1), np.stack(valid, axis=1)
+
+
+def _screen_lines(normals: np.ndarray, valid: np.ndarray, basis):
+    """Facet half-spaces [K, P] as screen half-planes ``a u + b v + c >= 0`` with
+    a^2 + b^2 = 1 (the direction of (u, v) is u right + v up - back); a facet parallel
+    to the image plane is dropped (valid False)."""
+    right, up, back = (np.asarray(x, np.float64) for x in basis)
+    a, b, c = (normals @ right, normals @ up, -(normals @ back))
+    ab = np.sqrt(a * a + b * b)
+    valid = valid & (ab > FACET_CONDITION)
+    ab = np.where(valid, ab, 1.0)
+    return a / ab, b / ab, c / ab, valid
+
+
+def _clip_box(box: np.ndarray, lines, pad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding boxes [K, 4] (u0, u1, v0, v1) of K boxes cut by their padded
+    half-planes ``a u + b v + c >= -pad``, and bool [K] whether anything is left.
+
+    The corners of a convex polygon are intersections of two of its lines; those that
+    satisfy every constraint (to a relative 1e-9) span the box of the polygon.
+    """
+    a, b, c, valid = lines
+    k = len(box)
+    # box edges as lines: u >= u0, -u >= -u1, v >= v0, -v >= -v1
+    one, zero = np.ones((k, 1)), np.zeros((k, 1))
+    la = np.concatenate([one, -one, zero, zero, np.where(valid, a, 0.0)], axis=1)
+    lb = np.concatenate([zero, zero, one, -one, np.where(valid, b, 0.0)], axis=1)
+    lc = np.concatenate([-box[:, :1], box[:, 1:2], -box[:, 2:3], box[:, 3:4],
+                         np.where(valid, c + pad[:, None], 1.0)], axis=1)
+    n = la.shape[1]
+    i, j = np.triu_indices(n, 1)
+    det = la[:, i] * lb[:, j] - la[:, j] * lb[:, i]
+    ok = np.abs(det) > 1e-12
+    det = np.where(ok, det, 1.0)
+    u = (lb[:, i] * lc[:, j] - lb[:, j] * lc[:, i]) / det
+    v = (la[:, j] * lc[:, i] - la[:, i] * lc[:, j]) / det
+    tol = 1e-9 * (1.0 + np.abs(u) + np.abs(v))
+    inside = ok & np.all(la[:, None, :] * u[..., None] + lb[:, None, :] * v[..., None]
+                         + lc[:, None, :] >= -tol[..., None], axis=2)
+    any_in = inside.any(axis=1)
+    big = np.inf
+    out = np.stack([np.where(inside, u, big).min(1), np.where(inside, u, -big).max(1),
+                    np.where(inside, v, big).min(1), np.where(inside, v, -big).max(1)], axis=1)
+    return np.where(any_in[:, None], out, 0.0), any_in
+
+
+def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid"):
+    """Screen regions of K primitives with generators pts [K, P, 3]: padded boxes [K, 4]
+    (u0, u1, v0, v1) cut to the padded cone, the cone's padded screen half-planes
+    (a, b, c, valid [K, F] each, pad [K]), and bool [K] whether the primitive is binned
+    at all (False: it goes into every cell)."""
     uvz = _project(pts, basis)
     u, v, z = uvz[..., 0], uvz[..., 1], uvz[..., 2]
-    ok = np.all(z > 0, axis=1) & np.isfinite(ratio)
-    r2 = np.max(np.where(ok[:, None], u * u + v * v, 0.0), axis=1)
-    pad = PAD_FACTOR * eps * np.where(ok, ratio, 0.0) * (2.0 + 2.0 * r2)
-    box = np.stack([u.min(1) - pad, u.max(1) + pad, v.min(1) - pad, v.max(1) + pad], axis=1)
+    bounded = np.all(z > 0, axis=1)
+    ok = np.isfinite(ratio)
+    corners = grid.box_corners()
+    r2_box = float(np.max(corners[:, 0] ** 2 + corners[:, 1] ** 2))
+    r2 = np.where(bounded, np.max(np.where(bounded[:, None], u * u + v * v, 0.0), axis=1),
+                  r2_box)
+    pad = (PAD_FACTOR * eps * np.where(ok, ratio, 0.0) + FACET_SLACK) * (2.0 + 2.0 * r2)
+    with np.errstate(invalid="ignore"):
+        hull = np.stack([u.min(1), u.max(1), v.min(1), v.max(1)], axis=1)
+    sample_box = np.array([corners[:, 0].min(), corners[:, 0].max(),
+                           corners[:, 1].min(), corners[:, 1].max()])
+    box = np.where(bounded[:, None], hull + pad[:, None] * np.array([-1, 1, -1, 1]),
+                   sample_box)
     ok &= np.all(np.isfinite(box), axis=1)
-    return np.where(ok[:, None], box, 0.0), ok
+    box = np.where(ok[:, None], box, 0.0)
+    lines = _screen_lines(*cone_facets(pts), basis)
+    clipped, nonempty = _clip_box(box, lines, pad)
+    box = np.where((ok & nonempty)[:, None], clipped, box)
+    return box, lines + (pad,), ok, ok & ~nonempty
 
 
 def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
@@ -230,8 +358,8 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
             (the depth cut), else None.
     """
     n_prim = len(shapes[0][0])
-    n_cells, gx = grid.cells, grid.shape[0]
-    boxes = [_boxes(pts, ratio, eps, basis) for pts, ratio in shapes]
+    n_cells = grid.cells
+    boxes = [_boxes(pts, ratio, eps, basis, grid) for pts, ratio in shapes]
     # primitives in order of rank: nearest depth with a depth cut (so each cell's list
     # is in depth order), else index order
     if near is None:
@@ -239,26 +367,23 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
     else:
         near = np.asarray(near, np.float64)
         prim = np.argsort(near, kind="stable")
-    # a primitive with any unbounded box goes everywhere; else each box's cell range
-    bounded = np.logical_and.reduce([ok for _, ok in boxes])[prim]
+    # a primitive with any box that cannot be binned goes everywhere; else the cells of
+    # each box's cell range that meet its cone
+    bounded = np.logical_and.reduce([ok for _, _, ok, _ in boxes])[prim]
     rank = np.flatnonzero(bounded)
     cols, ranks = [], []
-    for box, _ in boxes:
-        bx = box[prim[rank]]
-        x0, x1 = grid.index(bx[:, 0], 0), grid.index(bx[:, 1], 0)
-        y0, y1 = grid.index(bx[:, 2], 1), grid.index(bx[:, 3], 1)
-        nx, ny = x1 - x0 + 1, y1 - y0 + 1
-        rep = nx * ny
-        off = np.arange(rep.sum()) - np.repeat(np.cumsum(rep) - rep, rep)
-        nxr = np.repeat(nx, rep)
-        cols.append((np.repeat(y0, rep) + off // nxr) * gx + np.repeat(x0, rep) + off % nxr)
-        ranks.append(np.repeat(rank, rep))
+    for box, lines, _, empty in boxes:
+        keep = rank[~empty[prim[rank]]]
+        cells, which = _row_spans(grid, box, lines, prim[keep])
+        cols.append(cells)
+        ranks.append(keep[which])
     every = np.flatnonzero(~bounded)
     cols.append(np.repeat(np.arange(n_cells), len(every)))
     ranks.append(np.tile(every, n_cells))
     c, r = np.concatenate(cols), np.concatenate(ranks)
     if len(boxes) > 1:                  # a cell met by both boxes of a primitive: once
-        key = np.unique(c * n_prim + r)
+        key = np.sort(c * n_prim + r)          # (np.unique hashes: slower here)
+        key = key[np.concatenate([[True], key[1:] != key[:-1]])]
         c, r = key // n_prim, key % n_prim
     else:                               # by cell, then rank (radix sorts of small ints)
         o = np.argsort(r, kind="stable")
@@ -282,6 +407,50 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
     per_block = np.bincount(grid.slot // BLOCK, minlength=len(bc))[: len(bc)]
     return ScreenBins(entries, starts, lengths, block_len.astype(np.int64),
                       int((~bounded).sum()), int((block_len * per_block).sum()))
+
+
+def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
+    """The cells of K primitives (indices ``prim`` [K]) that meet their cone, row by row.
+
+    Within a cell row (v in [v0, v1]) a padded half-plane ``a u + b v + c + pad >= 0``
+    holds at some point of a cell iff the cell's u range reaches the bound
+    ``-(b v* + c + pad) / a`` (v* the row's end farthest along b), so each row's cells
+    form one column span: the box's columns cut by every facet's bound (a cell is kept
+    iff it meets each half-plane; the bounds are widened by a millionth of a cell).
+
+    Returns (cell int64 [N], the index into ``prim`` int64 [N]).
+    """
+    a, b, c, valid, pad = (x[prim] for x in lines)
+    x0, x1 = grid.index(box[prim, 0], 0), grid.index(box[prim, 1], 0)
+    y0, y1 = grid.index(box[prim, 2], 1), grid.index(box[prim, 3], 1)
+    ny = y1 - y0 + 1
+    k = np.repeat(np.arange(len(prim)), ny)
+    row = np.repeat(y0, ny) + np.arange(ny.sum()) - np.repeat(np.cumsum(ny) - ny, ny)
+    v0, v1 = (e[row] for e in grid.cell_edges(1))
+    lo, hi = x0[k].astype(np.float64), x1[k].astype(np.float64)
+    ok = np.ones(len(k), bool)
+    width = 1.0 / grid.scale[0] if grid.scale[0] > 0 else 0.0
+    for f in range(a.shape[1]):
+        af, bf, use = a[k, f], b[k, f], valid[k, f]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            reach = (np.where(bf > 0, bf * v1, np.where(bf < 0, bf * v0, 0.0))
+                     + c[k, f] + pad[k])                    # a u + reach >= 0 somewhere
+            bound = -reach / np.where(af != 0, af, 1.0)
+        flat = use & (np.abs(af) <= FACET_CONDITION)        # no u in it: the row or none
+        ok &= ~flat | (reach >= 0)
+        up = use & (af > FACET_CONDITION)                   # u >= bound
+        down = use & (af < -FACET_CONDITION)                # u <= bound
+        with np.errstate(invalid="ignore"):
+            lo = np.where(up & (bound > -np.inf),
+                          np.maximum(lo, grid.index(bound - 2e-6 * width, 0)), lo)
+            hi = np.where(down & (bound < np.inf),
+                          np.minimum(hi, grid.index(bound + 2e-6 * width, 0)), hi)
+        ok &= ~(up & (bound == np.inf)) & ~(down & (bound == -np.inf))
+    lo, hi = lo.astype(np.int64), hi.astype(np.int64)
+    n = np.where(ok & (hi >= lo), hi - lo + 1, 0)
+    cells = np.repeat(row * grid.shape[0] + lo, n) + (
+        np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+    return cells, np.repeat(k, n)
 
 
 def nearest_depth(points: np.ndarray, basis, directions: int = 0) -> np.ndarray:
