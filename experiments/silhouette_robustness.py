@@ -116,7 +116,8 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
          "claim": "the deterministic multiplicity is exact where per-slot evaluations leak",
          "measured": {str(r): [int(x) for x in w[i]] for i, r in enumerate(arrays["rules"])},
          "holds": bool(np.all(w[0] == 0) and w[1:].sum() > 0)},
-        {"claim": "the paper's side test never culls a needed side (ZFAIL)",
+        {"id": "p13.visibility_exact",
+         "claim": "the paper's side test never culls a needed side (ZFAIL)",
          "measured": {str(s): f"{int(arrays['cull_changed'][i, 1])} px changed by culling "
                       f"({int(arrays['cull_wrong'][i, 1])} wrong)"
                       for i, s in enumerate(arrays["scenes"])},

@@ -172,15 +172,18 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
              for k in ("mismatches", "unexplained"))),
          "holds": all(np.all(arrays[f"{p}_{n}_unexplained"] == 0) for p in ("tri", "obj")
                       for n in VARIANTS)},
-        {"claim": "silhouettes need fewer sides than per-triangle volumes, and the gap "
+        {"id": "p13.table1.sides",
+         "claim": "silhouettes need fewer sides than per-triangle volumes, and the gap "
                   "grows with tessellation (Table 1: GS vs GSTR)",
          "measured": [round(float(x), 4) for x in q],
          "holds": bool(np.all(q < 1) and np.all(np.diff(q) < 0))},
-        {"claim": "more objects at constant triangles cost more: with per-object adjacency "
+        {"id": "p13.tables3_4.objects",
+         "claim": "more objects at constant triangles cost more: with per-object adjacency "
                   "the cuts become open edges (Tables 3-4; the cause is our assumption)",
          "measured": [int(x) for x in opened],
          "holds": bool(np.all(np.diff(opened) >= 0) and opened[-1] > opened[0])},
-        {"claim": "the 2-manifold fast path (GS2M) halves the sides of closed objects",
+        {"id": "p13.manifold_sides",
+         "claim": "the 2-manifold fast path (GS2M) halves the sides of closed objects",
          "measured": [round(float(x), 3) for x in half],
          "holds": bool(np.all(half < 0.6))},
         *_shadow_map_claims(arrays, cfg),

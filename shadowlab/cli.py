@@ -77,6 +77,10 @@ def _parser() -> argparse.ArgumentParser:
     figures.add_argument("--scheduler", metavar="ADDRESS",
                          help="run the experiments on the Dask cluster at ADDRESS")
     figures.add_argument("--quiet", action="store_true")
+    figures.add_argument("--claims-only", action="store_true",
+                         help="run nothing: recompute the claims of the figures in "
+                              "--root/figures from their stored arrays and configs (after a "
+                              "change to an experiment's claims())")
     return ap
 
 
@@ -195,9 +199,15 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_figures(args) -> int:
-    from .harness.figures import regenerate
+    from .harness.figures import regenerate, remeasure_claims
 
     from .config import ConfigError
+
+    if args.claims_only:
+        for name in remeasure_claims(Path(args.root), only=args.only or None):
+            if not args.quiet:
+                print(f"{name}: claims recomputed", file=sys.stderr)
+        return 0
 
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"figures --workers must be >= 1, got {args.workers}")

@@ -147,3 +147,30 @@ def test_a_failing_timing_claim_is_recorded_but_never_enforced(tmp_path):
                                                                   "s14.fig6.gain2x"))
     with pytest.raises(ClaimFailed, match="x sums to 4"):
         run_experiment(tmp_path, "toy", "ci", out=tmp_path / "figures")
+
+
+def test_claims_only_recomputes_claims_from_the_stored_arrays(tmp_path, capsys):
+    """`shadowlab figures --claims-only`: today's claims() over the committed arrays and
+    config, without running; the run's provenance stays, the recomputation is recorded."""
+    import json
+
+    from shadowlab.cli import main
+
+    (tmp_path / "experiments").mkdir()
+    (tmp_path / "configs" / "experiments").mkdir(parents=True)
+    (tmp_path / "experiments" / "toy.py").write_text(_TOY)
+    (tmp_path / "configs" / "experiments" / "toy.ci.toml").write_text("require_claims = false\n")
+    run_experiment(tmp_path, "toy", "ci", out=tmp_path / "figures")
+    before = json.loads((tmp_path / "figures" / "toy.json").read_text())
+    (tmp_path / "experiments" / "toy.py").write_text(
+        _TOY.replace("arrays['x'].sum()", "arrays['x'].sum() + 1").replace(
+            'arrays["x"].sum() == 4', 'arrays["x"].sum() + 1 == 4').replace(
+            "def run(cfg):\n    return", "def run(cfg):\n    raise RuntimeError\n    return"))
+    assert main(["figures", "--claims-only", "--root", str(tmp_path), "--quiet"]) == 0
+    after = json.loads((tmp_path / "figures" / "toy.json").read_text())
+    assert [c["measured"] for c in after["claims"]] == ["3", "4"]
+    assert [c["holds"] for c in after["claims"]] == [True, True]
+    assert after["provenance"] == before["provenance"] and "claims_provenance" in after
+    (tmp_path / "figures" / "toy.npz").unlink()
+    assert main(["figures", "--claims-only", "--root", str(tmp_path), "--only", "toy"]) == 2
+    assert "toy.json: no committed run" in capsys.readouterr().err

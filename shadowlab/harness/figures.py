@@ -25,10 +25,13 @@ and configs ``configs/experiments/<name>.ci.toml`` and ``<name>.full.toml``. Out
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 import time
 import traceback
 from pathlib import Path
+
+import numpy as np
 
 from ..core import io
 from ..config.errors import ConfigError
@@ -191,6 +194,39 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
         raise ClaimFailed(f"{name} ({size}): required claims do not hold: "
                           + "; ".join(f"{c['claim']} ({c['measured']})" for c in failed))
     return arrays
+
+
+def remeasure_claims(root: Path, only: list[str] | None = None) -> list[str]:
+    """Recompute the claims (and summary) of committed figures from their stored arrays.
+
+    For a change to an experiment's ``claims()`` that leaves its measurement alone: the
+    arrays of ``figures/<name>.npz`` and the config recorded in ``figures/<name>.json``
+    go through today's ``claims()``; the JSON keeps its run's provenance and records the
+    commit the claims were recomputed at (``claims_provenance``). Returns the names done.
+
+    Raises:
+        ExperimentError: an unknown name, or a figure without its arrays.
+    """
+    found = discover(root)
+    names = only or [n for n in found if (root / "figures" / f"{n}.json").exists()]
+    done = []
+    for name in names:
+        if name not in found:
+            raise ExperimentError(f"unknown experiment {name!r}; available: {', '.join(found)}")
+        meta_path, npz_path = (root / "figures" / f"{name}{ext}" for ext in (".json", ".npz"))
+        if not (meta_path.exists() and npz_path.exists()):
+            raise ExperimentError(f"{meta_path}: no committed run to recompute claims from")
+        module = load_module(found[name])
+        meta = json.loads(meta_path.read_text())
+        with np.load(npz_path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        meta["claims"] = measure_claims(module, arrays, meta["config"])
+        if hasattr(module, "summary"):
+            meta["summary"] = module.summary(arrays, meta["config"])
+        meta["claims_provenance"] = io.provenance()
+        io.write_json(meta_path, meta)
+        done.append(name)
+    return done
 
 
 def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
