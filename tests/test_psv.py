@@ -60,6 +60,55 @@ def test_options_keep_the_result():
         assert np.count_nonzero((r.lit != truth) & gbuf.valid) == 0, opts
 
 
+def _same(a, b):
+    assert np.array_equal(a.lit, b.lit)
+    for k in a.counters:
+        if k != "tree_reused":
+            assert np.array_equal(np.asarray(a.counters[k]), np.asarray(b.counters[k])), k
+
+
+def test_reused_tree_gives_the_same_result(precision):
+    """reuse_tree keeps the TOP tree of a static light: the next call skips the build
+    and equals a rebuilt run; another light, build option, camera (with
+    frustum_culling) or a dropped cache builds anew."""
+    from shadowlab.scene import caches
+
+    scene, light, gbuf, _ = _setup("gate")          # a scene of its own: nothing cached
+    fresh = sl.compute_shadows(scene, gbuf, light, method="d_hybrid", precision=precision)
+    first = sl.compute_shadows(scene, gbuf, light, method="d_hybrid", precision=precision,
+                               reuse_tree=True)
+    again = sl.compute_shadows(scene, gbuf, light, method="d_stackless", precision=precision,
+                               reuse_tree=True)
+    assert first.counters["tree_reused"] == 0 and again.counters["tree_reused"] == 1
+    assert "build" not in again.timings and "build" in first.timings
+    _same(fresh, first)
+    _same(sl.compute_shadows(scene, gbuf, light, method="d_stackless", precision=precision),
+          again)
+    moved = sl.PointLight(position=np.asarray(light.position) + [0.5, 0.0, 0.0])
+    other = sl.compute_shadows(scene, gbuf, moved, method="d_stackless", precision=precision,
+                               reuse_tree=True)
+    assert other.counters["tree_reused"] == 0
+    _same(sl.compute_shadows(scene, gbuf, moved, method="d_stackless", precision=precision),
+          other)
+    seeded = sl.compute_shadows(scene, gbuf, moved, method="d_stackless", precision=precision,
+                                reuse_tree=True, seed=3)
+    assert seeded.counters["tree_reused"] == 0
+    # frustum culling makes the tree depend on the camera
+    sl.compute_shadows(scene, gbuf, light, method="psv", precision=precision,
+                       reuse_tree=True, frustum_culling=True)
+    cam = gbuf.camera.replace(fov_y_deg=gbuf.camera.fov_y_deg * 0.5)
+    narrow = sl.render_gbuffer(scene, cam)
+    r = sl.compute_shadows(scene, narrow, light, method="psv", precision=precision,
+                           reuse_tree=True, frustum_culling=True)
+    assert r.counters["tree_reused"] == 0
+    _same(sl.compute_shadows(scene, narrow, light, method="psv", precision=precision,
+                             frustum_culling=True), r)
+    caches.drop(scene)
+    r = sl.compute_shadows(scene, narrow, light, method="psv", precision=precision,
+                           reuse_tree=True, frustum_culling=True)
+    assert r.counters["tree_reused"] == 0
+
+
 def test_stack_overflow_is_detected_and_hybrid_switches():
     scene, light, gbuf, truth = _scene("fuzzy")
     r = sl.compute_shadows(scene, gbuf, light, method="psv", stack_size=1)

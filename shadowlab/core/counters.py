@@ -103,6 +103,8 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
             "(ancestor link set)"),
     Counter("build_rounds", "int", "rounds of the parallel TOP-tree build"),
     Counter("query_chunks", "int", "fixed-trip query chunks run (between lane compactions)"),
+    Counter("tree_reused", "int", "1 when the TOP tree of an earlier call was reused "
+            "(reuse_tree, static light and geometry), else 0"),
     # tiled soft shadows (soft_tiled, soft_overlap_sum; docs/soft_tiled.md)
     Counter("soft_clusters", "int", "triangle clusters built from the scene (Morton-sorted runs "
             "of cluster_size triangles)"),

@@ -248,13 +248,22 @@ def bias_terms(samples: Samples, light_h: np.ndarray, planes: np.ndarray, eps: f
     Args:
         light_h: float64 [4] homogeneous light; planes: [T, 4, 4] (row 3 the cap).
     """
+    scale = bias_scale(samples, light_h, eps, mode)
     if mode == "cap":
-        return np.ones(samples.count), np.full(planes.shape[0], -eps)
-    to_light = light_h[:3] - light_h[3] * samples.position
-    a = np.einsum("ij,ij->i", samples.normal, to_light)
+        return scale, np.full(planes.shape[0], -eps)
     cap = np.asarray(planes[:, 3], dtype=np.float64)
     cap_at_light = cap[:, :3] @ light_h[:3] + light_h[3] * cap[:, 3]
-    return a - eps * light_h[3], -eps * cap_at_light
+    return scale, -eps * cap_at_light
+
+
+def bias_scale(samples: Samples, light_h: np.ndarray, eps: float, mode: str) -> np.ndarray:
+    """float64 [S]: the per-sample scale of :func:`bias_terms` (its per-triangle bound
+    does not depend on the samples, so a structure built from the bounds can outlive
+    the frame)."""
+    if mode == "cap":
+        return np.ones(samples.count)
+    to_light = light_h[:3] - light_h[3] * samples.position
+    return np.einsum("ij,ij->i", samples.normal, to_light) - eps * light_h[3]
 
 
 def cap_bias(scene: Scene, shadow_eps: float) -> float:

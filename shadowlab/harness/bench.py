@@ -10,8 +10,10 @@ reference its kind calls for. Results are saved as JSON for plots.
 Two ratios per hard method (docs/benchmarks.md, "Protocol"):
 
 - **static** (``ratio_to_reference``): Embree's BVH is built once, before timing, and
-  excluded; the method keeps what it caches across frames (adjacency, local scene), as a
-  static scene under a static light would;
+  excluded; the method keeps what it caches across frames (adjacency, local scene) and
+  runs with its ``static_options`` (``MethodInfo``: e.g. PSV's ``reuse_tree``, which
+  keeps the light's TOP tree), as a static scene under a static light would; the case's
+  own options override them;
 - **dynamic** (``dynamic_ratio``): every timed call starts with every per-scene cache
   dropped (``scene.caches.drop``): Embree pays its BVH build plus the trace, the method
   its whole frame (wall clock of ``compute_shadows``, including what it would cache).
@@ -143,7 +145,9 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
             out["methods"][name] = {"skipped": runnable[name]}
             continue
         options = dict(config.methods.options.get(name, {}))
-        ev = evaluate(scene, gbuf, view.light, name, options, reference=refs, repeats=repeats)
+        static = {k: v for k, v in get(name).static_options.items() if k not in options}
+        ev = evaluate(scene, gbuf, view.light, name, {**static, **options}, reference=refs,
+                      repeats=repeats)
         options.setdefault("shadow_eps", eps)
         # soft methods are compared at equal error, not by ratio: no dynamic frame for them
         dynamic = [] if ev.kind is MethodKind.SOFT else dynamic_seconds(
@@ -152,7 +156,7 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
         stages = {k: v for k, v in ev.timings.items() if not k.endswith("_compile")}
         compile_s = {k: v for k, v in ev.timings.items() if k.endswith("_compile")}
         counters = ev.result.scalar_counters()
-        row = {"stages": stages, "compile": compile_s,
+        row = {"static_options": static, "stages": stages, "compile": compile_s,
                "compile_seconds": ev.compile_seconds,
                "median_seconds": ev.seconds,
                "ratio_to_reference": ev.seconds / ref_median if ref_median > 0 else None,
@@ -277,6 +281,9 @@ def format_bench(results: dict) -> str:
             if "skipped" in m:
                 lines.append(f"  {name:<16} skipped: {m['skipped']}")
                 continue
+            if m.get("static_options"):
+                lines.append(f"  {name:<16} static: " + ", ".join(
+                    f"{k}={v}" for k, v in m["static_options"].items()))
             if "mae" in m["error"]:
                 at = m["embree_seconds_at_equal_error"]
                 lines.append(f"  {name:<16} {1000 * m['median_seconds']:>9.1f} "

@@ -31,7 +31,9 @@ _INTRO = (
     "`shadowlab bench --out FILE` writes; do not edit above the marker line. Every method\n"
     "time is the median of the warm runs (a first call, which compiles, is run and timed\n"
     "apart); \"x Embree\" (static) divides it by the median of the Embree shadow-ray pass\n"
-    "timed in the same run on the same pixels, its BVH built beforehand; \"dynamic x\"\n"
+    "timed in the same run on the same pixels, its BVH built beforehand, and the method\n"
+    "runs with its static options (named beside it: structures it keeps under a static\n"
+    "light and geometry, such as PSV's TOP tree); \"dynamic x\"\n"
     "divides the method's whole frame with every per-scene cache dropped by Embree's BVH\n"
     "build plus trace. Mismatches are valid pixels whose lit value differs\n"
     "from `reference_shadows`; soft methods report their error against `soft_reference`\n"
@@ -94,7 +96,9 @@ def _hard_table(case: dict) -> list[str]:
             out.append(f"| `{name}` | skipped: {m['skipped']} | | | | | | |")
             continue
         rate = m.get("tests_per_second")
-        out.append(f"| `{name}` | {_ms(m['median_seconds'])} | {m['compile_seconds']:.2f} "
+        static = ", ".join(f"{k}={v}" for k, v in m.get("static_options", {}).items())
+        label = f"`{name}` ({static})" if static else f"`{name}`"
+        out.append(f"| {label} | {_ms(m['median_seconds'])} | {m['compile_seconds']:.2f} "
                    f"| {_num(m.get('ratio_to_reference'), '.2f')} "
                    f"| {_num(m.get('dynamic_ratio'), '.2f')} "
                    f"| {m['error']['mismatches']} of {m['error']['valid_pixels']} "

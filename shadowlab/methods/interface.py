@@ -194,6 +194,10 @@ class MethodInfo:
         frame: where the frame origin is centred for this method, "camera" or "light"
             (``shadowlab.core.frame.localize``); the method and its kernel get the
             scene, G-buffer and light relative to it.
+        static_options: options that let the method keep light-dependent structures
+            across calls when the light and the geometry are static (as Embree keeps
+            its BVH); ``shadowlab bench`` sets them for its static ratio. Empty when the
+            method keeps nothing of the kind.
     """
 
     name: str
@@ -207,6 +211,7 @@ class MethodInfo:
     kernel: Callable | None = None
     presets: dict = dataclasses.field(default_factory=dict)
     frame: str = "camera"
+    static_options: dict = dataclasses.field(default_factory=dict)
 
     @property
     def exact(self) -> bool:

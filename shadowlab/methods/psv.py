@@ -25,10 +25,12 @@ import numpy as np
 
 from ..core.capacity import bucket, pad
 from ..geometry.triangle_setup import shadow_volume_planes
+from ..scene.caches import per_scene_cache
 from ..scene.view import hard_light
 from ..core.timing import StageTimer
 from ..structures import top_tree as tt
-from ..core.frame import BIAS_MODES, bias_terms, cap_bias, precision_mode, view_samples
+from ..core.frame import (BIAS_MODES, bias_scale, bias_terms, cap_bias, precision_mode,
+                          view_samples)
 from .registry import Option, register
 from ..core.result import ShadowResult
 
@@ -599,7 +601,27 @@ _COMMON = {
                     "slow)", allowed=("parallel", "sequential")),
     "chunk": Option(32, "node visits per lane between compactions of unfinished lanes",
                     kind=int, minimum=1),
+    "reuse_tree": Option(False, "keep the TOP tree for the next call with the same scene, "
+                         "light and build options (a static light and geometry: the tree "
+                         "depends on neither camera nor samples unless frustum_culling is "
+                         "on, then on the camera too); off: every call builds, as the "
+                         "papers time a frame", allowed=(False, True)),
 }
+
+#: options the TOP tree depends on (besides the scene, the light and the precision)
+_TREE_OPTIONS = ("shadow_eps", "bias", "order", "seed", "wedge", "classify_ulps",
+                 "face_culling", "frustum_culling", "build")
+#: per scene: (key, (tree, culled)) of the latest tree built with ``reuse_tree``
+#: (``scene.caches.drop`` forgets it, as it forgets Embree's BVH)
+_TREES = per_scene_cache()
+
+
+def _tree_key(light, camera, dtype, o: dict) -> tuple:
+    key = (hard_light(light).homogeneous.astype(np.float64).tobytes(), np.dtype(dtype).str,
+           *(o[k] for k in _TREE_OPTIONS))
+    if o["frustum_culling"]:
+        key += (np.asarray(camera.view_projection(), np.float64).tobytes(),)
+    return key
 
 
 def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
@@ -609,11 +631,22 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
         samples = view_samples(gbuf, light)
     light_h = hard_light(light).homogeneous
     with precision_mode(o["precision"]) as dtype:
-        tree, scale, culled = build_tree(
-            scene, light, gbuf.camera, samples, dtype=dtype, shadow_eps=o["shadow_eps"],
-            bias=o["bias"], order=o["order"], seed=o["seed"], wedge=o["wedge"],
-            classify_ulps=o["classify_ulps"], face_culling=o["face_culling"],
-            frustum_culling=o["frustum_culling"], build=o["build"], timer=timer)
+        key = _tree_key(light, gbuf.camera, dtype, o) if o["reuse_tree"] else None
+        held = _TREES.get(scene) if key is not None else None
+        if held is not None and held[0] == key:
+            tree, culled = held[1]
+            with timer.stage("casters"):
+                scale = bias_scale(samples, light_h, cap_bias(scene, o["shadow_eps"]),
+                                   o["bias"])
+        else:
+            tree, scale, culled = build_tree(
+                scene, light, gbuf.camera, samples, dtype=dtype, shadow_eps=o["shadow_eps"],
+                bias=o["bias"], order=o["order"], seed=o["seed"], wedge=o["wedge"],
+                classify_ulps=o["classify_ulps"], face_culling=o["face_culling"],
+                frustum_culling=o["frustum_culling"], build=o["build"], timer=timer)
+            if key is not None:
+                _TREES[scene] = (key, (tree, culled))
+                held = None
         with timer.stage("query_setup"):
             key = tt.light_key(samples.position, light_h)
             pts = samples.position.astype(dtype)
@@ -641,6 +674,7 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
         "intersection_triangles": st["intersection_triangles"],
         "build_rounds": st["build_rounds"],
         "query_chunks": int(res["chunks"]),
+        "tree_reused": int(held is not None),
     }
     if query != "stackless":
         counters.update({
@@ -663,6 +697,7 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
     return ShadowResult(lit, counters, timings)
 
 
+_STATIC = {"reuse_tree": True}
 _STACK = {"stack_size": Option(32, "stack entries per sample (a push onto a full stack is "
                                "lost, as in the original; counted as an overflow)",
                                kind=int, minimum=1, maximum=MAX_STACK)}
@@ -671,7 +706,8 @@ _HSTACK = {"stack_size": Option(12, "short-stack entries per sample before switc
 # What every TOP-tree method declares; the query adds its stack or switch counters.
 _COUNTERS = ("samples", "casters", "culled_triangles", "shadowed", "lit", "visited_nodes",
              "visited_nodes_mean", "visited_nodes_per_pixel", "tree_nodes", "tree_depth",
-             "dropped_triangles", "intersection_triangles", "build_rounds", "query_chunks")
+             "dropped_triangles", "intersection_triangles", "build_rounds", "query_chunks",
+             "tree_reused")
 _STACK_COUNTERS = ("stack_max", "stack_max_per_pixel")
 _OVERFLOW_COUNTERS = ("stack_overflows", "overflow_pixels", "stack_overflows_per_pixel")
 _SWITCH_COUNTERS = ("stackless_switches", "stackless_switches_per_pixel")
@@ -685,7 +721,7 @@ _SLCAP = {"stackless_cap": Option("paper", "stackless query at a cap node with a
 
 @register("psv", doc="Partitioned Shadow Volumes: TOP tree, stack query (Gerhards et al. 2015)",
           paper="Gerhards et al. 2015, as in Mora et al. 2016 (Algorithm 1)",
-          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES, frame="light",
+          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES, frame="light", static_options=_STATIC,
           counters=_COUNTERS + _STACK_COUNTERS + _OVERFLOW_COUNTERS)
 def psv(scene, gbuf, light, *, stack_size, **o):
     return _run("psv", scene, gbuf, light, query="stack", depth_test=False,
@@ -694,7 +730,7 @@ def psv(scene, gbuf, light, *, stack_size, **o):
 
 @register("d_psv", doc="PSV stack query with the depth test (Mora et al. 2016)",
           paper="Mora et al. 2016 (Section 3.3)",
-          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES, frame="light",
+          options={**_COMMON, **_STACK}, kind="exact", stages=_STAGES, frame="light", static_options=_STATIC,
           counters=_COUNTERS + _STACK_COUNTERS + _OVERFLOW_COUNTERS)
 def d_psv(scene, gbuf, light, *, stack_size, **o):
     return _run("d_psv", scene, gbuf, light, query="stack", depth_test=True,
@@ -704,7 +740,7 @@ def d_psv(scene, gbuf, light, *, stack_size, **o):
 @register("d_stackless", doc="stackless TOP-tree query with ancestor links and depth test "
           "(Mora et al. 2016)", paper="Mora et al. 2016 "
           "(Algorithm 3)", options={**_COMMON, **_SLCAP}, kind="exact", stages=_STAGES,
-          frame="light",
+          frame="light", static_options=_STATIC,
           counters=_COUNTERS)
 def d_stackless(scene, gbuf, light, *, stackless_cap, **o):
     return _run("d_stackless", scene, gbuf, light, query="stackless", depth_test=True,
@@ -714,7 +750,7 @@ def d_stackless(scene, gbuf, light, *, stackless_cap, **o):
 @register("d_hybrid", doc="short-stack TOP-tree query switching to the stackless query "
           "when the stack is full, with depth test (Mora et al. 2016)",
           paper="Mora et al. 2016 (Section 3.5)",
-          options={**_COMMON, **_HSTACK, **_SLCAP}, kind="exact", stages=_STAGES, frame="light",
+          options={**_COMMON, **_HSTACK, **_SLCAP}, kind="exact", stages=_STAGES, frame="light", static_options=_STATIC,
           counters=_COUNTERS + _STACK_COUNTERS + _SWITCH_COUNTERS)
 def d_hybrid(scene, gbuf, light, *, stack_size, stackless_cap, **o):
     return _run("d_hybrid", scene, gbuf, light, query="hybrid", depth_test=True,

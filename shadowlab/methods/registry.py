@@ -41,7 +41,7 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
              kind: MethodKind | str | None = None, counters: tuple[str, ...] | None = None,
              stages: tuple[str, ...] = (), exact: bool = True, soft: bool = False,
              paper: str = "", presets: dict[str, dict] | None = None,
-             frame: str = "camera"):
+             frame: str = "camera", static_options: dict | None = None):
     """Decorator that adds a method to the registry.
 
     ``frame`` ("camera" or "light") centres the frame-local coordinates the method
@@ -53,7 +53,8 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
     ``stages`` are checked on every result. ``presets`` ({name: {option: value}}, e.g.
     ``{"paper": {...}}`` for the paper's own choices) add the option ``preset``
     (default ``DEFAULT_PRESET``: the options' defaults); every preset value is validated
-    here.
+    here. ``static_options`` ({option: value}, validated here) are what the method
+    may keep across calls under a static light and geometry (``MethodInfo``).
     """
     if kind is None:
         kind = MethodKind.SOFT if soft else (MethodKind.EXACT if exact else
@@ -78,11 +79,12 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
         info = MethodInfo(name, fn, doc, opts, kind,
                           None if counters is None else tuple(counters),
                           tuple(stages), paper, old.kernel if old else None, sets,
-                          frame)
+                          frame, dict(static_options or {}))
         for preset, values in sets.items():
             if "preset" in values:
                 raise ValueError(f"method {name!r}: preset {preset!r} sets 'preset'")
             info.model.resolve(values)          # MethodError on a bad preset value
+        info.model.resolve(info.static_options)
         _REGISTRY[name] = info
         return fn
     return deco
@@ -109,7 +111,8 @@ def names() -> list[str]:
 
 def available() -> dict[str, dict]:
     """Method name -> {doc, kind, exact, soft, kernel, paper, counters, stages,
-    presets: {name: {option: value}}, options: {name: {default, allowed, doc}}}."""
+    presets: {name: {option: value}}, static_options: {option: value},
+    options: {name: {default, allowed, doc}}}."""
     _load_builtin()
     return {
         name: {
@@ -117,6 +120,7 @@ def available() -> dict[str, dict]:
             "kernel": info.kernel is not None, "paper": info.paper,
             "counters": list(info.counters or ()), "stages": list(info.stages),
             "presets": {k: dict(v) for k, v in info.presets.items()},
+            "static_options": dict(info.static_options),
             "options": {k: {"default": o.default, "allowed": o.describe_allowed(), "doc": o.doc}
                         for k, o in info.options.items()},
         }
