@@ -196,7 +196,8 @@ def plot(arrays: dict):
 
 
 def check(arrays: dict, cfg: dict) -> None:
-    """The exact defaults have no unexplained mismatch (docs/exactness.md); the papers'
+    """The exact defaults have no unexplained mismatch (docs/exactness.md: their false
+    shadows at full size are shadow-boundary pixels); the papers'
     configuration never shadows a pixel that brute force with the same cap bias lights
     (its culling side may only lose shadows);
     culling planes never add node tests or test-and-sets; without pruning, two passes
@@ -204,8 +205,10 @@ def check(arrays: dict, cfg: dict) -> None:
     here the two-pass variant is only checked for exactness)."""
     variants = list(arrays["variants"])
     exact = [variants.index(k) for k in EXACT]
+    paper = [v for v in range(len(variants)) if v not in exact]
     assert np.all(arrays["unexplained"][:, exact] == 0), arrays["unexplained"][:, exact]
-    assert np.all(arrays["false_shadows"] == 0), arrays["false_shadows"]
+    # the exact variants' false shadows are boundary pixels (counted as explained above)
+    assert np.all(arrays["false_shadows"][:, paper] == 0), arrays["false_shadows"][:, paper]
     base, cull = variants.index("baseline"), variants.index("+culling planes")
     tests = arrays["tests"]
     assert np.all(tests[:, cull] <= tests[:, base])

@@ -308,56 +308,44 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("t18.fig1.speedup", "T18", "Fig. 1, Sec. 4",
           "The conservative shadow-map prepass more than doubles the IZB hard-shadow speed "
           "(8.52 -> 3.59 ms at 4K)",
-          experiments=("izb_*",),
-          pending="the IZB method and its experiments are being added (another issue)"),
+          experiments=("izb_*",)),
     Claim("t18.fig3.stages", "T18", "Fig. 3",
           "With node culling IZB creation drops 3.28 -> 1.07 ms and frustum tracing "
           "9.12 -> 0.58 ms (list lengths shrink)",
-          experiments=("izb_*",),
-          pending="the IZB experiments are being added (another issue)"),
+          experiments=("izb_*",)),
     Claim("t18.tab1.cull_rate", "T18", "Table 1",
           "The barycentric full-coverage test culls 56.0 % / 37.4 % of the shading points "
           "(Hertel et al. 2009: 55.5 % / 35.8 %) at the same cost",
-          experiments=("izb_*",),
-          pending="the IZB experiments are being added (another issue)"),
+          experiments=("izb_*",)),
     Claim("t18.conservative", "T18", "Sec. 2",
           "The conservative shadow map never shadows a lit point (the result stays exact)",
-          kind="qualitative", experiments=("izb_*",),
-          pending="the IZB experiments are being added (another issue)"),
+          kind="qualitative", experiments=("izb_*",)),
     # ---------------------------------------------------------------- Kalbertodt 2023
     Claim("k23.overlap_sum", "K23", "Rasterization",
           "Summing the overlap areas of the occluders over-shadows (two half-covers give 1, "
           "not 0.5); the bitset union does not",
-          kind="qualitative", experiments=("soft_tiled_error",),
-          pending="claims of the soft_tiled experiments are being added (another issue); "
-                  "they are listed below once recorded"),
+          kind="qualitative", experiments=("soft_tiled_error",)),
     Claim("k23.clamp", "K23", "Projection",
           "The max(0.0001, ...) clamp of the projection works without artifacts",
-          kind="qualitative", experiments=("soft_tiled_stability",),
-          pending="claims of the soft_tiled experiments are being added (another issue)"),
+          kind="qualitative", experiments=("soft_tiled_stability",)),
     Claim("k23.rotation", "K23", "Fixing banding",
           "Randomly rotating the grid removes the banding without visible noise",
-          kind="qualitative", experiments=("soft_tiled_error",),
-          pending="claims of the soft_tiled experiments are being added (another issue)"),
+          kind="qualitative", experiments=("soft_tiled_error",)),
     Claim("k23.grid_31xn", "K23", "Grid size optimization",
           "31x3 / 31x5 / 31x7 grids cost 2.1 / 2.5 / 3.1 ms against 5 ms for 16x16, "
           "trading banding for time",
-          experiments=("soft_tiled_error",),
-          pending="claims of the soft_tiled experiments are being added (another issue)"),
+          experiments=("soft_tiled_error",)),
     Claim("k23.ffc", "K23", "Gather pass",
           "Culling light-facing triangles removes more triangles than back-face culling "
           "(terrain faces the light)",
-          experiments=("soft_tiled_culling",),
-          pending="claims of the soft_tiled experiments are being added (another issue)"),
+          experiments=("soft_tiled_culling",)),
     Claim("k23.gather", "K23", "Performance",
           "The gather pass reduces 13 M triangles to about 2.5 M (about 19 %)",
-          experiments=("soft_tiled_culling",),
-          pending="claims of the soft_tiled experiments are being added (another issue)"),
+          experiments=("soft_tiled_culling",)),
     Claim("k23.halfz", "K23", "Depth discontinuities & half-z",
           "Half-z splitting of the tile depth range helps less than expected; tiles with "
           "large depth ranges overflow the list",
-          kind="qualitative", experiments=("soft_tiled_culling",),
-          pending="claims of the soft_tiled experiments are being added (another issue)"),
+          kind="qualitative", experiments=("soft_tiled_culling",)),
 )
 
 BY_ID = {c.id: c for c in CLAIMS}
