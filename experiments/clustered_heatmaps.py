@@ -11,7 +11,9 @@
 #
 # On the gate scene (the paper's Fig. 1 view: a near gate, trees, a distant house), the
 # number of times each pixel is tested against a shadow volume by `ptsv` (2D tiles with
-# depth ranges) and by `clustered_ptsv` (implicit and explicit bounds). Pixels are split
+# depth ranges; built from the light-facing samples, and as in 2011 from the whole depth
+# buffer, which the paper's claims are judged against) and by `clustered_ptsv`
+# (implicit and explicit bounds). Pixels are split
 # into those whose 8 x 4 PTSV tile spans a steep depth discontinuity (max / min depth
 # > 2) and the rest; the paper's claim is that PTSV's work piles up at such
 # discontinuities while the cluster hierarchy's does not.
@@ -28,7 +30,11 @@ from shadowlab.harness.claims import measured
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
 
+# `ptsv` is this library's exact baseline (its tree built from the valid, light-facing
+# samples); "ptsv (2011 build)" builds from the whole depth buffer, as the 2011 algorithm
+# the paper compares with does; the paper's claims are judged against that one.
 VARIANTS = (("ptsv", "ptsv", {}),
+            ("ptsv (2011 build)", "ptsv", {"tree_samples": "all"}),
             ("clustered (implicit)", "clustered_ptsv", {"bounds": "implicit"}),
             ("clustered (explicit)", "clustered_ptsv", {"bounds": "explicit"}))
 
@@ -171,14 +177,17 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
     often than elsewhere, and the cluster hierarchy with explicit bounds tests those
     pixels at least `min_gain` times less often than PTSV."""
     labels = list(arrays["labels"])
-    pt, ex = labels.index("ptsv"), labels.index("clustered (explicit)")
+    ex = labels.index("clustered (explicit)")
+    ours = labels.index("ptsv")
+    pt = labels.index("ptsv (2011 build)") if "ptsv (2011 build)" in labels else ours
     means = arrays["means"]
     gain = means[pt, 0] / max(means[ex, 0], 1e-9)
     need = float(cfg.get("min_gain", 2.0))
     return [
         measured("s14.fig3.ptsv_discontinuities",
-                 f"PTSV {means[pt, 0]:.1f} tests per pixel at discontinuities vs "
-                 f"{means[pt, 1]:.1f} elsewhere", means[pt, 0] > means[pt, 1]),
+                 f"PTSV (2011 build) {means[pt, 0]:.1f} tests per pixel at discontinuities "
+                 f"vs {means[pt, 1]:.1f} elsewhere (light-facing build: {means[ours, 0]:.1f} "
+                 f"vs {means[ours, 1]:.1f})", means[pt, 0] > means[pt, 1]),
         measured("s14.fig1c.volume",
                  f"leaf boxes (post-perspective volume): explicit "
                  f"{arrays['leaf_volume'][1] / arrays['leaf_volume'][0]:.3f} of implicit, "
@@ -188,8 +197,10 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
                  arrays["leaf_volume"][1] < 0.5 * min(arrays["leaf_volume"][0],
                                                       arrays["leaf_volume"][2])),
         measured("s14.fig3.cluster_discontinuities",
-                 f"explicit {means[ex, 0]:.1f} vs PTSV {means[pt, 0]:.1f} tests per pixel "
-                 f"there ({gain:.1f}x, need {need:g}x)", gain >= need),
+                 f"explicit {means[ex, 0]:.1f} vs PTSV (2011 build) {means[pt, 0]:.1f} "
+                 f"tests per pixel there ({gain:.1f}x, need {need:g}x; against the "
+                 f"light-facing build {means[ours, 0] / max(means[ex, 0], 1e-9):.1f}x)",
+                 gain >= need),
     ]
 
 
