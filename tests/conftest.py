@@ -1,4 +1,7 @@
-"""Test-session set-up: one pytest process runs the whole suite.
+"""Test-session set-up: one pytest session runs the whole suite (CI: on every core with
+pytest-xdist, ``-n auto --dist loadfile``, so each worker process runs whole test files
+and its module-level caches and compiled shapes serve the whole file; every worker runs
+this set-up for itself).
 
 Compilation caches are hermetic: every session gets a fresh temporary folder for JAX's
 persistent cache and Warp's kernel cache and removes it at the end, so the tests never

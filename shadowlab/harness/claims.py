@@ -170,9 +170,12 @@ CLAIMS: tuple[Claim, ...] = (
           "33 MB of pointers plus a compact list that never exceeded 52,000 boxes; 1080p "
           "needs (66 + 2) MB expected",
           experiments=("clustered_stages",),
-          explain="our compact storage counts masks, pointers and 24-byte boxes of the "
-                  "existing nodes; the paper's 33 MB of pointers for 8.65 M nodes does not "
-                  "follow from 4-byte pointers either (35 MB)"),
+          explain="our compact storage counts masks, start counts and 24-byte boxes of "
+                  "the existing nodes, not the paper's layouts; those reproduce its 1024^2 "
+                  "figures (33 MiB = 8.65 M x 4-byte pointers; docs/clustered_ptsv.md), but "
+                  "its 1080p (66 + 2) MB does not follow from its key: 1920 x 1080 needs one "
+                  "more bit per image axis (2048 > 1920), which at least quadruples the full "
+                  "tree, not doubles it"),
     Claim("s14.sec2.z_bits", "S14", "Sec. 2",
           "Nine bits for z' are more than sufficient at 1024^2 for all scenes",
           experiments=("clustered_stages",),
