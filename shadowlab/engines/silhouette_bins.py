@@ -37,8 +37,10 @@ working precision: each can take the wrong sign only within an angle of about
 ``1 + r^2`` (r: distance from the projection centre); the pad is ``PAD_FACTOR`` times
 that bound over every predicate vector pair of the primitive. Where the count only
 takes crossings between the eye and q (ZPASS sides, the caps before q), a primitive
-whose nearest point is beyond the farthest q of a cell by more than ``DEPTH_MARGIN`` of
-that depth is left out of that cell.
+whose nearest point is beyond the farthest q of a block by more than ``DEPTH_MARGIN`` of
+that depth is left out of that block's list; where it only takes crossings beyond q
+(ZFAIL's true front caps), a cap whose farthest vertex is nearer than the block's
+nearest q by more than that margin is left out.
 
 Each facet plane is shifted outwards by the same pad (the region it bounds then holds
 every direction within the rounding angle of the cone), and a generator pair whose
@@ -73,6 +75,8 @@ class SampleGrid:
         lo, scale: (u, v) origin and cells per unit of the grid; shape: (gx, gy).
         zmax: float64 [Nb] the farthest q depth of each block (inf where a sample's q
             is not in front of the eye).
+        zmin: float64 [Nb] the nearest q depth of each block (-inf where a sample's q
+            is not in front of the eye).
         block_cell: int64 [Nb] the cell of each block of ``BLOCK`` samples.
         slot: int64 [S] each sample's place in the blocks' flat [Nb * BLOCK] layout.
         q: [Nb + 1, BLOCK, 3] the samples in blocks (working dtype; the last block and
@@ -84,6 +88,7 @@ class SampleGrid:
     scale: tuple
     shape: tuple
     zmax: np.ndarray
+    zmin: np.ndarray
     block_cell: np.ndarray
     slot: np.ndarray
     q: np.ndarray
@@ -134,7 +139,7 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGri
         a, b = (x.min(), x.max()) if len(x) else (0.0, 0.0)
         lo.append(a)
         scale.append(n / (b - a) if b > a else 0.0)
-    grid = SampleGrid(None, tuple(lo), tuple(scale), shape, None, None, None, None)
+    grid = SampleGrid(None, tuple(lo), tuple(scale), shape, None, None, None, None, None)
     n_cells = shape[0] * shape[1]
     cell = np.full(len(q), n_cells, np.int64)
     cell[good] = grid.index(vq[good], 1) * shape[0] + grid.index(uq[good], 0)
@@ -153,7 +158,10 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGri
     zb = np.full((n_blocks + 1) * BLOCK, -np.inf)
     zb[slot] = np.where(good, zq, np.inf)
     zmax = zb.reshape(-1, BLOCK).max(axis=1)[:n_blocks]
-    return dataclasses.replace(grid, cell=cell, zmax=zmax,
+    zb = np.full((n_blocks + 1) * BLOCK, np.inf)
+    zb[slot] = np.where(good, zq, -np.inf)
+    zmin = zb.reshape(-1, BLOCK).min(axis=1)[:n_blocks]
+    return dataclasses.replace(grid, cell=cell, zmax=zmax, zmin=zmin,
                                block_cell=np.repeat(cells, nb_cell), slot=slot,
                                q=qb.reshape(n_blocks + 1, BLOCK, 3))
 
@@ -164,7 +172,8 @@ class ScreenBins:
 
     Attributes:
         entries: int64 [E] primitive indices (into the K primitives), grouped by cell
-            (with a depth cut: in order of nearest depth within a cell).
+            (with a depth cut: in order of nearest depth, or of farthest depth
+            descending, within a cell).
         starts, lengths: int64 [Nc + 1] each cell's first entry and list length.
         block_lengths: int64 [Nb] the part of its cell's list each block of the grid
             tests (all of it, or with a depth cut the primitives not beyond the block).
@@ -240,6 +249,8 @@ def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
     return [(np.stack([a, b, da, db], axis=1), ratio)]
 
 
+#: boxes wider or taller than this many cells are cut to their cone before binning
+CLIP_CELLS = 4
 #: a generator pair spans a facet plane only if |x x y| >= this times |x| |y|
 FACET_CONDITION = 1e-6
 #: slack (an angle, radians) of the one-side test of the other generators
@@ -340,13 +351,21 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
     ok &= np.all(np.isfinite(box), axis=1)
     box = np.where(ok[:, None], box, 0.0)
     lines = _screen_lines(*cone_facets(pts), basis)
-    clipped, nonempty = _clip_box(box, lines, pad)
-    box = np.where((ok & nonempty)[:, None], clipped, box)
-    return box, lines + (pad,), ok, ok & ~nonempty
+    # cutting the box to the cone pays for unbounded and large boxes only (a box within
+    # a few cells loses nothing the row spans would not drop anyway)
+    cell = [1.0 / sc if sc > 0 else np.inf for sc in grid.scale]
+    big = ok & (~bounded | (box[:, 1] - box[:, 0] > CLIP_CELLS * cell[0])
+                | (box[:, 3] - box[:, 2] > CLIP_CELLS * cell[1]))
+    empty = np.zeros(len(box), bool)
+    if big.any():
+        clipped, nonempty = _clip_box(box[big], tuple(x[big] for x in lines), pad[big])
+        box[big] = np.where(nonempty[:, None], clipped, box[big])
+        empty[big] = ~nonempty
+    return box, lines + (pad,), ok, empty
 
 
 def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
-                near: np.ndarray | None = None) -> ScreenBins:
+                near: np.ndarray | None = None, far: np.ndarray | None = None) -> ScreenBins:
     """Bin K primitives into the cells of ``grid`` (host, float64).
 
     Args:
@@ -356,17 +375,30 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
         basis: the camera's (right, up, back) unit vectors.
         near: [K] each primitive's nearest depth, when only crossings before q count
             (the depth cut), else None.
+        far: [K] each primitive's farthest depth, when only crossings beyond q count
+            (the mirrored cut: a block skips the primitives nearer than its nearest q by
+            more than ``DEPTH_MARGIN``), else None; not with ``near``.
     """
+    if near is not None and far is not None:
+        raise ValueError("screen_bins: a depth cut by near or by far depth, not both")
     n_prim = len(shapes[0][0])
     n_cells = grid.cells
     boxes = [_boxes(pts, ratio, eps, basis, grid) for pts, ratio in shapes]
     # primitives in order of rank: nearest depth with a depth cut (so each cell's list
     # is in depth order), else index order
-    if near is None:
+    # the cut as one rule: a block takes the primitives whose rank key is <= its limit
+    if near is not None:
+        rank_key = np.asarray(near, np.float64)
+        limit = grid.zmax * (1 + DEPTH_MARGIN)
+    elif far is not None:
+        rank_key = -np.asarray(far, np.float64)
+        limit = -grid.zmin * (1 - DEPTH_MARGIN)
+    else:
+        rank_key = limit = None
+    if rank_key is None:
         prim = np.arange(n_prim)
     else:
-        near = np.asarray(near, np.float64)
-        prim = np.argsort(near, kind="stable")
+        prim = np.argsort(rank_key, kind="stable")
     # a primitive with any box that cannot be binned goes everywhere; else the cells of
     # each box's cell range that meet its cone
     bounded = np.logical_and.reduce([ok for _, _, ok, _ in boxes])[prim]
@@ -395,12 +427,12 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
     entries = np.concatenate([prim[r], prim])
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
     bc = grid.block_cell
-    if near is None:
+    if rank_key is None:
         block_len = lengths[bc]
     else:
         # entries of the block's cell within the block's depth limit: the ranks of the
-        # primitives with near <= limit are those below searchsorted(near, limit)
-        below = np.searchsorted(near[prim], grid.zmax * (1 + DEPTH_MARGIN), side="right")
+        # primitives with key <= limit are those below searchsorted(key, limit)
+        below = np.searchsorted(rank_key[prim], limit, side="right")
         key = np.concatenate([c * (n_prim + 1) + r, n_cells * (n_prim + 1) + np.arange(n_prim)])
         block_len = np.searchsorted(key, bc * (n_prim + 1) + below) - starts[bc]
         block_len = np.where(bc == n_cells, n_prim, block_len)
@@ -451,6 +483,11 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
     cells = np.repeat(row * grid.shape[0] + lo, n) + (
         np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
     return cells, np.repeat(k, n)
+
+
+def farthest_depth(points: np.ndarray, basis) -> np.ndarray:
+    """[K]: the largest camera depth of K point sets [K, P, 3] (eye-relative points)."""
+    return _project(np.asarray(points, np.float64), basis)[..., 2].max(axis=1)
 
 
 def nearest_depth(points: np.ndarray, basis, directions: int = 0) -> np.ndarray:

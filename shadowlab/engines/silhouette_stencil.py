@@ -183,7 +183,7 @@ def binned_side_kernel(zfail: bool):
     return run
 
 
-SPANS = ("behind", "eye_ray", "front")
+SPANS = ("behind", "eye_ray", "front", "none")
 
 
 def _cap_crossings(qv, e0, e1, e2, t, s, span, back_caps, mul):
@@ -194,25 +194,29 @@ def _cap_crossings(qv, e0, e1, e2, t, s, span, back_caps, mul):
     (scalars, or arrays broadcasting against ``qv``). The same operations in the same
     order for the full and the binned pass (so both see the same bits).
     """
-    f1 = _dot(qv, e0, 6, mul) >= 0
-    f2 = _dot(qv, e1, 6, mul) >= 0
-    f3 = _dot(qv, e2, 6, mul) <= 0
-    through = (f1 == f2) & (f2 == f3)
     nq = _dot(qv, t, 0, mul)
-    nlo = t[3]
-    same = ((nlo > 0) & (nq > 0)) | ((nlo < 0) & (nq < 0))   # lambda > 0
-    rest = nlo - nq                                          # lambda > 1 ...
-    far = ((rest > 0) & (nq > 0)) | ((rest < 0) & (nq < 0))
-    if span == "behind":
-        hit = far
-    elif span == "eye_ray":
-        hit = same
-    else:
-        hit = same & ~far & (rest != 0)
-    front = through & hit & (s != 0)
     sq = jnp.where(nq > 0, 1, -1).astype(jnp.int32)
-    stencil = jnp.where(front, s * sq, 0)
-    updates = front.astype(jnp.int32)
+    if span == "none":                                   # back caps only
+        stencil = updates = jnp.zeros(jnp.broadcast_shapes(nq.shape, jnp.shape(s)),
+                                      jnp.int32)
+    else:
+        f1 = _dot(qv, e0, 6, mul) >= 0
+        f2 = _dot(qv, e1, 6, mul) >= 0
+        f3 = _dot(qv, e2, 6, mul) <= 0
+        through = (f1 == f2) & (f2 == f3)
+        nlo = t[3]
+        same = ((nlo > 0) & (nq > 0)) | ((nlo < 0) & (nq < 0))   # lambda > 0
+        rest = nlo - nq                                          # lambda > 1 ...
+        far = ((rest > 0) & (nq > 0)) | ((rest < 0) & (nq < 0))
+        if span == "behind":
+            hit = far
+        elif span == "eye_ray":
+            hit = same
+        else:
+            hit = same & ~far & (rest != 0)
+        front = through & hit & (s != 0)
+        stencil = jnp.where(front, s * sq, 0)
+        updates = front.astype(jnp.int32)
     if back_caps:
         b1 = _dot(qv, e0, 13, mul) >= 0
         b2 = _dot(qv, e1, 13, mul) >= 0
@@ -240,8 +244,9 @@ def cap_kernel(chunk: int, span: str, back_caps: bool):
 
     ``span`` selects the front caps counted: "behind" (lambda > 1: true caps behind the
     point), "eye_ray" (lambda > 0: caps at infinity, eq. 6, drawn wherever the eye ray
-    meets the triangle) or "front" (0 < lambda < 1: caps between the eye and the point,
-    which hide it). A front cap crossed adds ``s_T sgn(n_T . q')``; a back cap (point
+    meets the triangle), "front" (0 < lambda < 1: caps between the eye and the point,
+    which hide it) or "none" (back caps only: a separate pass, so that the true front
+    caps can take a depth cut). A front cap crossed adds ``s_T sgn(n_T . q')``; a back cap (point
     light, ``back_caps``) crossed adds +1. Every sample tests every triangle (the full
     pass; :func:`binned_cap_kernel` tests each sample's screen bin only).
     """

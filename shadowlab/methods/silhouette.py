@@ -38,8 +38,9 @@ from ..core.frame import cap_bias, precision_mode, view_samples
 from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
-from ..engines.silhouette_bins import (batch_arrays, cap_shapes, nearest_depth, sample_grid,
-                                      screen_bins, side_shapes, unbatch)
+from ..engines.silhouette_bins import (batch_arrays, cap_shapes, farthest_depth,
+                                      nearest_depth, sample_grid, screen_bins, side_shapes,
+                                      unbatch)
 from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
                                           edge_table, side_kernel, vertex_terms)
 from ..geometry.clip_visibility import CULL_MODES, side_visible
@@ -289,8 +290,13 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         # (nonzero only where q is hidden) complete ZPASS and the caps at infinity
         passes = []
         if zfail:
-            passes.append((("eye_ray" if front_cap == "infinity" else "behind"),
-                           point and lh[3] > 0, 1, True))
+            back = bool(point and lh[3] > 0)
+            if front_cap == "infinity":
+                passes.append(("eye_ray", back, 1, True))
+            else:                   # true caps (depth cut beyond q) and back caps apart
+                passes.append(("behind", False, 1, True))
+                if back:
+                    passes.append(("none", True, 1, True))
             cap_triangles = int((s_t != 0).sum()) * (2 if point else 1)
         if bias == "receiver" and (not zfail or front_cap == "infinity"):
             passes.append(("front", False, -1, False))
@@ -309,8 +315,11 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             if binned and len(keep):
                 with timer.stage("caps_bins"):
                     shapes = cap_shapes(verts[srt[keep]], light_rel[:3] if back else None)
+                    if span == "none":
+                        shapes = shapes[1:]                 # the back caps' shape only
                     near = nearest_depth(shapes[0][0], basis) if span == "front" else None
-                    sb = screen_bins(grid, shapes, eps_w, basis, near)
+                    far = farthest_depth(shapes[0][0], basis) if span == "behind" else None
+                    sb = screen_bins(grid, shapes, eps_w, basis, near, far)
                     args = batch_arrays(grid, sb)
                 cs, cu = timer.run("caps", binned_cap_kernel(span, back), q_blocks,
                                    *map(jnp.asarray, args), edges3, terms, signs, zero)
