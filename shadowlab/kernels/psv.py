@@ -491,7 +491,8 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
     ``options`` are the registry options of ``method`` (defaults filled in the same way);
     ``precision`` must be float32 and ``build`` is ignored (the kernel builds). Counters
     are those of ``methods.psv`` except ``build_rounds`` and ``query_chunks`` (no rounds
-    or chunks here), plus the kernel's ``cas_failures``; timings: ``build``, ``query``
+    or chunks here; ``tree_reused`` is always 0: the kernel builds on every call), plus
+    the kernel's ``cas_failures``; timings: ``build``, ``query``
     (seconds, compile excluded: the kernels are loaded before the clock starts).
     """
     import time
@@ -536,6 +537,7 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
         "dropped_triangles": st["dropped_triangles"],
         "intersection_triangles": st["intersection_triangles"],
         "cas_failures": bstats["cas_failures"],
+        "tree_reused": 0,                    # the kernel builds on every call
     }
     if kind != "stackless":
         counters["stack_max"] = int(res["stack_max"].max(initial=0))
