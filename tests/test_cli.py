@@ -171,6 +171,21 @@ def test_bench_writes_json(tmp_path, capsys):
         row["dynamic_median_seconds"] / ref["dynamic_median_seconds"])
 
 
+def test_bench_static_ratio_uses_the_methods_static_options(tmp_path):
+    """A PSV method keeps its TOP tree in the static frame (its static_options), unless
+    the case sets the option itself; the dynamic frame rebuilds."""
+    out = tmp_path / "bench.json"
+    for case_opts, reused in (([], 1), (["--set", "methods.options.d_stackless.reuse_tree=false"],
+                                         0)):
+        assert main(["bench", "--size", "ci", "--repeats", "1", "--out", str(out), "--quiet",
+                     "--set", "camera.resolution=[32,32]",
+                     "--set", 'methods.names=["d_stackless"]', *case_opts]) == 0
+        row = json.loads(out.read_text())["cases"][0]["methods"]["d_stackless"]
+        assert row["counters"]["tree_reused"] == reused
+        assert row["static_options"] == ({"reuse_tree": True} if reused else {})
+        assert row["error"]["mismatches"] == 0 and row["dynamic_runs"][0] > 0
+
+
 # The default scene (gate) made small: the scene and resolution of the pareto experiment's
 # CI-size gate frame (configs/experiments/pareto.ci.toml), so both compile the same
 # programs once per test session. The default config itself (gate, every method) is

@@ -291,4 +291,5 @@ def _read_methods(ctx: Context, table: dict, reference: ReferenceConfig) -> Meth
         except registry.MethodError as exc:  # pragma: no cover - checked per key above
             raise ConfigError(f"{ctx.where(f'methods.options.{method}')}: "
                               f"methods.options.{method}: {exc}") from exc
-    return MethodsConfig(names=names, options=options, all=every)
+    return MethodsConfig(names=names, options=options, all=every,
+                         given={m: tuple(given.get(m, {})) for m in names})

@@ -227,6 +227,7 @@ class MethodsConfig(BaseModel):
     names: tuple[str, ...]
     options: dict[str, dict[str, Any]] = {}
     all: bool = False   # names came from "all": methods that cannot run on the light are skipped
+    given: dict[str, tuple[str, ...]] = {}   # per method, the options the config wrote
 
 
 class ReferenceConfig(BaseModel):

@@ -145,8 +145,9 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
             out["methods"][name] = {"skipped": runnable[name]}
             continue
         options = dict(config.methods.options.get(name, {}))
-        static = {k: v for k, v in get(name).static_options.items() if k not in options}
-        ev = evaluate(scene, gbuf, view.light, name, {**static, **options}, reference=refs,
+        written = config.methods.given.get(name, ())
+        static = {k: v for k, v in get(name).static_options.items() if k not in written}
+        ev = evaluate(scene, gbuf, view.light, name, {**options, **static}, reference=refs,
                       repeats=repeats)
         options.setdefault("shadow_eps", eps)
         # soft methods are compared at equal error, not by ratio: no dynamic frame for them
