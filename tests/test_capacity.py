@@ -98,3 +98,10 @@ def test_retry_with_several_capacities_grows_only_those_that_overflow():
     assert caps[1] >= np.sum(np.asarray(x) > 0.5) > caps[1] // 2
     np.testing.assert_array_equal(np.asarray(hi)[: np.sum(np.asarray(x) > 0.5)],
                                   np.flatnonzero(np.asarray(x) > 0.5))
+
+
+def test_run_offsets_count_within_each_run():
+    from shadowlab.core.capacity import run_offsets
+
+    assert run_offsets([2, 0, 3, 1]).tolist() == [0, 1, 0, 1, 2, 0]
+    assert run_offsets([]).tolist() == []

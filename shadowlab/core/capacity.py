@@ -6,7 +6,8 @@ frontiers, lists) is padded to a *capacity* from a small set of sizes
 problem size. When a kernel cannot know its output size in advance, it writes at most
 ``capacity`` entries and reports how many it needed; :func:`retry_on_overflow` reruns it
 with a larger bucket until nothing was dropped (the neighbour-list pattern of jax-md:
-allocate, detect overflow, reallocate).
+allocate, detect overflow, reallocate). :func:`run_offsets` expands per-item counts
+into the exact-size lists (CSR) that such work is built from.
 """
 
 from __future__ import annotations
@@ -14,6 +15,13 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+
+
+def run_offsets(counts: np.ndarray) -> np.ndarray:
+    """int64 [sum(counts)]: 0, 1, ..., counts[i] - 1 for each run i in turn, i.e. the
+    place within its run of every element of ``np.repeat(x, counts)``."""
+    counts = np.asarray(counts, np.int64)
+    return np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
 def bucket(n: int, minimum: int = 1024, steps: int = 1) -> int:

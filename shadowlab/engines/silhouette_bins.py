@@ -59,7 +59,7 @@ import dataclasses
 
 import numpy as np
 
-from ..core.capacity import bucket, pad
+from ..core.capacity import bucket, pad, run_offsets
 
 TILE = 16           # about TILE x TILE pixels of samples per cell
 PAD_FACTOR = 16.0   # pad = PAD_FACTOR * eps * (|a| + |b|)^2 / |a x b| * 2 (1 + r^2)
@@ -457,7 +457,7 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
     y0, y1 = grid.index(box[prim, 2], 1), grid.index(box[prim, 3], 1)
     ny = y1 - y0 + 1
     k = np.repeat(np.arange(len(prim)), ny)
-    row = np.repeat(y0, ny) + np.arange(ny.sum()) - np.repeat(np.cumsum(ny) - ny, ny)
+    row = np.repeat(y0, ny) + run_offsets(ny)
     v0, v1 = (e[row] for e in grid.cell_edges(1))
     lo, hi = x0[k].astype(np.float64), x1[k].astype(np.float64)
     ok = np.ones(len(k), bool)
@@ -480,8 +480,7 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
         ok &= ~(up & (bound == np.inf)) & ~(down & (bound == -np.inf))
     lo, hi = lo.astype(np.int64), hi.astype(np.int64)
     n = np.where(ok & (hi >= lo), hi - lo + 1, 0)
-    cells = np.repeat(row * grid.shape[0] + lo, n) + (
-        np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+    cells = np.repeat(row * grid.shape[0] + lo, n) + run_offsets(n)
     return cells, np.repeat(k, n)
 
 

@@ -172,11 +172,9 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
     seconds = time.perf_counter() - t0
     out = out or root / "figures"
     fig = module.plot(arrays)
-    found = measure_claims(module, arrays, cfg)
     meta = {"experiment": name, "size": size, "config": cfg, "run_seconds": seconds,
-            "claims": found, "provenance": io.provenance()}
-    if hasattr(module, "summary"):
-        meta["summary"] = module.summary(arrays, cfg)
+            **_measured(module, arrays, cfg), "provenance": io.provenance()}
+    found = meta["claims"]
     io.write_npz(out / f"{name}.npz", arrays)
     io.save_figure(fig, out / f"{name}.png")
     io.write_json(out / f"{name}.json", meta)
@@ -194,6 +192,15 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
         raise ClaimFailed(f"{name} ({size}): required claims do not hold: "
                           + "; ".join(f"{c['claim']} ({c['measured']})" for c in failed))
     return arrays
+
+
+def _measured(module, arrays: dict, cfg: dict) -> dict:
+    """What a figure's JSON derives from its arrays: ``claims`` and, where the
+    experiment defines one, ``summary``."""
+    out = {"claims": measure_claims(module, arrays, cfg)}
+    if hasattr(module, "summary"):
+        out["summary"] = module.summary(arrays, cfg)
+    return out
 
 
 def remeasure_claims(root: Path, only: list[str] | None = None) -> list[str]:
@@ -220,10 +227,8 @@ def remeasure_claims(root: Path, only: list[str] | None = None) -> list[str]:
         meta = json.loads(meta_path.read_text())
         with np.load(npz_path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-        meta["claims"] = measure_claims(module, arrays, meta["config"])
-        if hasattr(module, "summary"):
-            meta["summary"] = module.summary(arrays, meta["config"])
-        meta["claims_provenance"] = io.provenance()
+        meta.update(_measured(module, arrays, meta["config"]),
+                    claims_provenance=io.provenance())
         io.write_json(meta_path, meta)
         done.append(name)
     return done

@@ -633,7 +633,8 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
     with precision_mode(o["precision"]) as dtype:
         key = _tree_key(light, gbuf.camera, dtype, o) if o["reuse_tree"] else None
         held = _TREES.get(scene) if key is not None else None
-        if held is not None and held[0] == key:
+        reused = held is not None and held[0] == key
+        if reused:
             tree, culled = held[1]
             with timer.stage("casters"):
                 scale = bias_scale(samples, light_h, cap_bias(scene, o["shadow_eps"]),
@@ -646,7 +647,6 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
                 frustum_culling=o["frustum_culling"], build=o["build"], timer=timer)
             if key is not None:
                 _TREES[scene] = (key, (tree, culled))
-                held = None
         with timer.stage("query_setup"):
             key = tt.light_key(samples.position, light_h)
             pts = samples.position.astype(dtype)
@@ -674,7 +674,7 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
         "intersection_triangles": st["intersection_triangles"],
         "build_rounds": st["build_rounds"],
         "query_chunks": int(res["chunks"]),
-        "tree_reused": int(held is not None),
+        "tree_reused": int(reused),
     }
     if query != "stackless":
         counters.update({

@@ -52,7 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.capacity import bucket, pad
+from ..core.capacity import bucket, pad, run_offsets
 
 from ..scene.light_camera import LightCamera, LightFace
 
@@ -217,8 +217,7 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
         t = np.flatnonzero(use)
         nrows = b[t, 3] - b[t, 2] + 1
         rt = np.repeat(t, nrows)
-        start = np.repeat(np.cumsum(nrows) - nrows, nrows)
-        row = b[rt, 2] + np.arange(len(rt)) - start
+        row = b[rt, 2] + run_offsets(nrows)
         base = (f * r + row) * r
         lo = np.searchsorted(keys, base + b[rt, 0], side="left")
         hi = np.searchsorted(keys, base + b[rt, 1], side="right")
@@ -239,9 +238,7 @@ def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
         tri int64 [F], slot int64 [F] (index into ``keys``), sorted by face, triangle.
     """
     _, tri, first, count = row_segments(setups, keys, resolution, select)
-    tt = np.repeat(tri, count)
-    start = np.repeat(np.cumsum(count) - count, count)
-    return tt, np.repeat(first, count) + np.arange(len(tt)) - start
+    return np.repeat(tri, count), np.repeat(first, count) + run_offsets(count)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
