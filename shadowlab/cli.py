@@ -130,6 +130,9 @@ def _cmd_methods(args) -> int:
         print(f"{name}  [{kind}]  {info['doc']}")
         for opt, spec in info["options"].items():
             print(f"    {opt} = {spec['default']!r}  ({spec['allowed']})  {spec['doc']}")
+        if info["static_options"]:
+            print("    static (shadowlab bench, static light and geometry): " + ", ".join(
+                f"{k}={v!r}" for k, v in info["static_options"].items()))
     return 0
 
 

@@ -146,6 +146,7 @@ def test_methods_and_scenes_listings(capsys):
     assert main(["methods"]) == 0
     out = capsys.readouterr().out
     assert "brute_force" in out and "precision = 'float32'" in out
+    assert "static (shadowlab bench, static light and geometry): reuse_tree=True" in out
     assert main(["scenes"]) == 0
     out = capsys.readouterr().out
     for name in ("sphere_grid", "gate", "fuzzy", "terrain", "blobs", "soup"):
