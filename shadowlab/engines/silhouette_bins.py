@@ -63,7 +63,15 @@ from ..core.capacity import bucket, pad, run_offsets
 
 TILE = 16           # about TILE x TILE pixels of samples per cell
 PAD_FACTOR = 16.0   # pad = PAD_FACTOR * eps * (|a| + |b|)^2 / |a x b| * 2 (1 + r^2)
+#: the pad factor of the front caps' plane predicates q' . (A' x B') (pure cross-dot
+#: products of eye-relative vertices; measured worst error 0.08 eps (|a| + |b|)^2 / |a x b|
+#: in float32, tests/test_silhouette_bins.py::test_cap_plane_rounding_within_the_pad)
+FRONT_CAP_PAD_FACTOR = 4.0
 DEPTH_MARGIN = 1.0 / 64.0
+#: samples per block (one list) and blocks per batch (one loop) of the binned kernels;
+#: a grid with smaller blocks gets proportionally more blocks per batch
+BLOCK = 64
+BATCH = 128
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -77,9 +85,9 @@ class SampleGrid:
             is not in front of the eye).
         zmin: float64 [Nb] the nearest q depth of each block (-inf where a sample's q
             is not in front of the eye).
-        block_cell: int64 [Nb] the cell of each block of ``BLOCK`` samples.
-        slot: int64 [S] each sample's place in the blocks' flat [Nb * BLOCK] layout.
-        q: [Nb + 1, BLOCK, 3] the samples in blocks (working dtype; the last block and
+        block_cell: int64 [Nb] the cell of each block of B samples.
+        slot: int64 [S] each sample's place in the blocks' flat [Nb * B] layout.
+        q: [Nb + 1, B, 3] the samples in blocks (working dtype; the last block and
             the tail of each cell's last block are zeros).
     """
 
@@ -92,6 +100,12 @@ class SampleGrid:
     block_cell: np.ndarray
     slot: np.ndarray
     q: np.ndarray
+    tile: int = TILE
+
+    @property
+    def block(self) -> int:
+        """Samples per block."""
+        return self.q.shape[1]
 
     @property
     def cells(self) -> int:
@@ -124,46 +138,65 @@ class SampleGrid:
                        self.shape[axis] - 1).astype(np.int64)
 
 
-def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int]) -> SampleGrid:
+def cap_cells(casters: int, samples: int) -> tuple[int, int]:
+    """(tile, block) of the caps passes' grid: the sides' 16-pixel cells, finer where the
+    casters are dense on screen (at least one per 16 samples: 8-pixel cells; one per
+    sample: 4-pixel cells of 16-sample blocks), since a cap's list then holds about
+    (casters per pixel) x (cell + padded cap) area. A performance choice only: any grid
+    gives the same counts."""
+    if casters >= samples:
+        return 4, 16
+    if 16 * casters >= samples:
+        return 8, BLOCK
+    return TILE, BLOCK
+
+
+def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = TILE,
+                block: int = BLOCK) -> SampleGrid:
     """Cells and blocks of S evaluation points q [S, 3] (eye-relative, working dtype).
 
-    The grid has about one cell per TILE x TILE pixels over the box of the projected q.
-    The samples of a cell fill blocks of ``BLOCK`` (the last one padded with zeros).
+    The grid has about one cell per ``tile`` x ``tile`` pixels over the box of the
+    projected q. The samples of a cell fill blocks of ``block`` (the last one padded with
+    zeros), in order of depth, so that a block's depth range (the depth cuts' limit) is
+    as narrow as its cell allows.
     """
     uvz = _project(np.asarray(q, np.float64), basis)
     uq, vq, zq = uvz[:, 0], uvz[:, 1], uvz[:, 2]
     good = (zq > 0) & np.isfinite(uq) & np.isfinite(vq)
-    shape = (max(1, -(-image_shape[1] // TILE)), max(1, -(-image_shape[0] // TILE)))
+    shape = (max(1, -(-image_shape[1] // tile)), max(1, -(-image_shape[0] // tile)))
     lo, scale = [], []
     for x, n in ((uq[good], shape[0]), (vq[good], shape[1])):
         a, b = (x.min(), x.max()) if len(x) else (0.0, 0.0)
         lo.append(a)
         scale.append(n / (b - a) if b > a else 0.0)
-    grid = SampleGrid(None, tuple(lo), tuple(scale), shape, None, None, None, None, None)
+    grid = SampleGrid(None, tuple(lo), tuple(scale), shape, None, None, None, None, None,
+                      tile)
     n_cells = shape[0] * shape[1]
     cell = np.full(len(q), n_cells, np.int64)
     cell[good] = grid.index(vq[good], 1) * shape[0] + grid.index(uq[good], 0)
-    # by cell (a radix sort of small ints); within a cell in sample order
-    order = np.argsort(cell.astype(np.uint16 if n_cells < 65536 else np.int64), kind="stable")
+    # by cell (a radix sort of small ints); within a cell by depth
+    order = np.argsort(np.where(good, zq, np.inf), kind="stable")
+    order = order[np.argsort(cell[order].astype(np.uint16 if n_cells < 65536 else np.int64),
+                             kind="stable")]
     sorted_cell = cell[order]
     cells, first, per_cell = np.unique(sorted_cell, return_index=True, return_counts=True)
-    nb_cell = -(-per_cell // BLOCK)
+    nb_cell = -(-per_cell // block)
     rank = np.arange(len(order)) - np.repeat(first, per_cell)
-    block_of = np.repeat(np.cumsum(nb_cell) - nb_cell, per_cell) + rank // BLOCK
+    block_of = np.repeat(np.cumsum(nb_cell) - nb_cell, per_cell) + rank // block
     slot = np.empty(len(q), np.int64)
-    slot[order] = block_of * BLOCK + rank % BLOCK
+    slot[order] = block_of * block + rank % block
     n_blocks = int(nb_cell.sum())
-    qb = np.zeros(((n_blocks + 1) * BLOCK, 3), np.asarray(q).dtype)
+    qb = np.zeros(((n_blocks + 1) * block, 3), np.asarray(q).dtype)
     qb[slot] = q
-    zb = np.full((n_blocks + 1) * BLOCK, -np.inf)
+    zb = np.full((n_blocks + 1) * block, -np.inf)
     zb[slot] = np.where(good, zq, np.inf)
-    zmax = zb.reshape(-1, BLOCK).max(axis=1)[:n_blocks]
-    zb = np.full((n_blocks + 1) * BLOCK, np.inf)
+    zmax = zb.reshape(-1, block).max(axis=1)[:n_blocks]
+    zb = np.full((n_blocks + 1) * block, np.inf)
     zb[slot] = np.where(good, zq, -np.inf)
-    zmin = zb.reshape(-1, BLOCK).min(axis=1)[:n_blocks]
+    zmin = zb.reshape(-1, block).min(axis=1)[:n_blocks]
     return dataclasses.replace(grid, cell=cell, zmax=zmax, zmin=zmin,
                                block_cell=np.repeat(cells, nb_cell), slot=slot,
-                               q=qb.reshape(n_blocks + 1, BLOCK, 3))
+                               q=qb.reshape(n_blocks + 1, block, 3))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -208,16 +241,17 @@ def _pair_ratio(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def cap_shapes(tri: np.ndarray, light: np.ndarray | None) -> list:
-    """Screen shapes of K casters: [(points [K, 3, 3], ratio [K])], the front cap and,
-    with ``light`` ([3] eye-relative point light, back caps), the back cap."""
+    """Screen shapes of K casters: [(points [K, 3, 3], ratio [K], pad factor)], the front
+    cap (``FRONT_CAP_PAD_FACTOR``) and, with ``light`` ([3] eye-relative point light, back
+    caps), the back cap (``PAD_FACTOR``)."""
     t = np.asarray(tri, np.float64)
     ratio = np.maximum.reduce([_pair_ratio(t[:, i], t[:, j]) for i, j in ((0, 1), (1, 2), (0, 2))])
-    out = [(t, ratio)]
+    out = [(t, ratio, FRONT_CAP_PAD_FACTOR)]
     if light is not None:
         d = t - np.asarray(light, np.float64)
         ratio = np.maximum.reduce([_pair_ratio(d[:, i], d[:, j] - d[:, i])
                                    for i, j in ((0, 1), (1, 2), (0, 2))])
-        out.append((d, ratio))
+        out.append((d, ratio, PAD_FACTOR))
     return out
 
 
@@ -249,8 +283,8 @@ def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
     return [(np.stack([a, b, da, db], axis=1), ratio)]
 
 
-#: boxes wider or taller than this many cells are cut to their cone before binning
-CLIP_CELLS = 4
+#: boxes wider or taller than about this many pixels are cut to their cone before binning
+CLIP_PIXELS = 64
 #: a generator pair spans a facet plane only if |x x y| >= this times |x| |y|
 FACET_CONDITION = 1e-6
 #: slack (an angle, radians) of the one-side test of the other generators
@@ -328,7 +362,8 @@ def _clip_box(box: np.ndarray, lines, pad: np.ndarray) -> tuple[np.ndarray, np.n
     return np.where(any_in[:, None], out, 0.0), any_in
 
 
-def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid"):
+def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid",
+           factor: float = PAD_FACTOR):
     """Screen regions of K primitives with generators pts [K, P, 3]: padded boxes [K, 4]
     (u0, u1, v0, v1) cut to the padded cone, the cone's padded screen half-planes
     (a, b, c, valid [K, F] each, pad [K]), and bool [K] whether the primitive is binned
@@ -341,7 +376,7 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
     r2_box = float(np.max(corners[:, 0] ** 2 + corners[:, 1] ** 2))
     r2 = np.where(bounded, np.max(np.where(bounded[:, None], u * u + v * v, 0.0), axis=1),
                   r2_box)
-    pad = (PAD_FACTOR * eps * np.where(ok, ratio, 0.0) + FACET_SLACK) * (2.0 + 2.0 * r2)
+    pad = (factor * eps * np.where(ok, ratio, 0.0) + FACET_SLACK) * (2.0 + 2.0 * r2)
     with np.errstate(invalid="ignore"):
         hull = np.stack([u.min(1), u.max(1), v.min(1), v.max(1)], axis=1)
     sample_box = np.array([corners[:, 0].min(), corners[:, 0].max(),
@@ -353,9 +388,9 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
     lines = _screen_lines(*cone_facets(pts), basis)
     # cutting the box to the cone pays for unbounded and large boxes only (a box within
     # a few cells loses nothing the row spans would not drop anyway)
-    cell = [1.0 / sc if sc > 0 else np.inf for sc in grid.scale]
-    big = ok & (~bounded | (box[:, 1] - box[:, 0] > CLIP_CELLS * cell[0])
-                | (box[:, 3] - box[:, 2] > CLIP_CELLS * cell[1]))
+    cell = [CLIP_PIXELS / grid.tile / sc if sc > 0 else np.inf for sc in grid.scale]
+    big = ok & (~bounded | (box[:, 1] - box[:, 0] > cell[0])
+                | (box[:, 3] - box[:, 2] > cell[1]))
     empty = np.zeros(len(box), bool)
     if big.any():
         clipped, nonempty = _clip_box(box[big], tuple(x[big] for x in lines), pad[big])
@@ -369,8 +404,9 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
     """Bin K primitives into the cells of ``grid`` (host, float64).
 
     Args:
-        shapes: [(points [K, P, 3], ratio [K])] from :func:`cap_shapes` or
-            :func:`side_shapes`: a primitive goes into the cells of each of its boxes.
+        shapes: [(points [K, P, 3], ratio [K][, pad factor])] from :func:`cap_shapes` or
+            :func:`side_shapes` (factor default ``PAD_FACTOR``): a primitive goes into
+            the cells of each of its boxes.
         eps: machine epsilon of the working precision (sets the padding).
         basis: the camera's (right, up, back) unit vectors.
         near: [K] each primitive's nearest depth, when only crossings before q count
@@ -383,7 +419,7 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
         raise ValueError("screen_bins: a depth cut by near or by far depth, not both")
     n_prim = len(shapes[0][0])
     n_cells = grid.cells
-    boxes = [_boxes(pts, ratio, eps, basis, grid) for pts, ratio in shapes]
+    boxes = [_boxes(pts, ratio, eps, basis, grid, *factor) for pts, ratio, *factor in shapes]
     # primitives in order of rank: nearest depth with a depth cut (so each cell's list
     # is in depth order), else index order
     # the cut as one rule: a block takes the primitives whose rank key is <= its limit
@@ -436,7 +472,7 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
         key = np.concatenate([c * (n_prim + 1) + r, n_cells * (n_prim + 1) + np.arange(n_prim)])
         block_len = np.searchsorted(key, bc * (n_prim + 1) + below) - starts[bc]
         block_len = np.where(bc == n_cells, n_prim, block_len)
-    per_block = np.bincount(grid.slot // BLOCK, minlength=len(bc))[: len(bc)]
+    per_block = np.bincount(grid.slot // grid.block, minlength=len(bc))[: len(bc)]
     return ScreenBins(entries, starts, lengths, block_len.astype(np.int64),
                       int((~bounded).sum()), int((block_len * per_block).sum()))
 
@@ -501,34 +537,50 @@ def nearest_depth(points: np.ndarray, basis, directions: int = 0) -> np.ndarray:
     return near
 
 
-#: samples per block (one list) and blocks per batch (one loop) of the binned kernels
-BLOCK = 64
-BATCH = 128
+
+#: lists longer than SPLIT_MIN entries (and than SPLIT_OVER_MEAN times the mean) are
+#: split into parts run as separate blocks of the same samples, so one long list (e.g.
+#: the back caps converging on the light's vanishing point) does not set the loop count
+#: of a batch of short ones
+SPLIT_MIN = 256
+SPLIT_OVER_MEAN = 4.0
 
 
 def batch_arrays(grid: SampleGrid, bins: ScreenBins):
     """The binned kernels' list arrays: blocks sorted by list length into batches of
-    ``BATCH`` (so a batch's loop count is close to each member's), capacities bucketed
-    to limit recompilation.
+    ``BATCH * BLOCK / grid.block`` (so a batch's loop count is close to each member's,
+    and a batch has ``BATCH * BLOCK`` lanes at any block size), capacities bucketed to
+    limit recompilation. A list longer than ``max(SPLIT_MIN, SPLIT_OVER_MEAN x mean)``
+    runs as several blocks of the same samples, each on one part (:func:`unbatch` sums them).
 
     Returns:
         (blocks int32 [C, N] (the padding block: the last, all zeros), start int32
         [C, N], length int32 [C, N], steps int32 [C], entries int32 [E']).
     """
     length = bins.block_lengths
+    first = bins.starts[grid.block_cell]
+    limit = max(1, int(max(SPLIT_MIN, SPLIT_OVER_MEAN * length.mean()) if len(length)
+                       else SPLIT_MIN))
+    parts = np.maximum(1, -(-length // limit))
+    block = np.repeat(np.arange(len(length)), parts)
+    k = run_offsets(parts)
+    start = np.repeat(first, parts) + k * limit
+    length = np.minimum(np.repeat(length, parts) - k * limit, limit)
+    per_batch = max(1, BATCH * BLOCK // grid.block)
     by_len = np.argsort(-length, kind="stable")
-    n_batches = bucket(-(-len(by_len) // BATCH), minimum=1, steps=8)
-    n = n_batches * BATCH
-    blocks = pad(by_len, n, fill=len(grid.block_cell), dtype=np.int32)
-    st = pad(bins.starts[grid.block_cell][by_len], n, dtype=np.int32)
-    ln = pad(length[by_len], n, dtype=np.int32).reshape(n_batches, BATCH)
+    n_batches = bucket(-(-len(by_len) // per_batch), minimum=1, steps=8)
+    n = n_batches * per_batch
+    blocks = pad(block[by_len], n, fill=len(grid.block_cell), dtype=np.int32)
+    st = pad(start[by_len], n, dtype=np.int32)
+    ln = pad(length[by_len], n, dtype=np.int32).reshape(n_batches, per_batch)
     entries = pad(bins.entries, bucket(len(bins.entries), steps=8), dtype=np.int32)
-    return (blocks.reshape(n_batches, BATCH), st.reshape(n_batches, BATCH), ln,
+    return (blocks.reshape(n_batches, per_batch), st.reshape(n_batches, per_batch), ln,
             ln.max(axis=1), entries)
 
 
 def unbatch(grid: SampleGrid, blocks: np.ndarray, out) -> np.ndarray:
     """Per-sample values [S] from a binned kernel's output [C, N, B] (blocks [C, N])."""
-    flat = np.zeros((len(grid.q), BLOCK), np.int64)
-    flat[np.asarray(blocks).reshape(-1)] = np.asarray(out).reshape(-1, BLOCK)
+    flat = np.zeros((len(grid.q), grid.block), np.int64)
+    # a split list's parts add up
+    np.add.at(flat, np.asarray(blocks).reshape(-1), np.asarray(out).reshape(-1, grid.block))
     return flat.reshape(-1)[grid.slot]

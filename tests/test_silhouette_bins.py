@@ -1,0 +1,109 @@
+"""Screen bins of the silhouette stencil: the rounding bound behind the front caps' pad,
+and the split lists and caps grid against the full passes."""
+
+import numpy as np
+import pytest
+
+import shadowlab as sl
+import shadowlab.engines.silhouette_bins as bins
+from shadowlab.core.numerics import cross3, ordered_dot
+from shadowlab.engines.silhouette_bins import FRONT_CAP_PAD_FACTOR, cap_cells
+from shadowlab.scene.procedural import default_view
+
+
+def _front_cap_trials(n, rng):
+    """n edges A, B (float32, eye-relative: distance 1 to 1e4, length 1e-6 to 0.3 of
+    it) and points q (float32) at a log-uniform angle theta off the plane through the
+    eye, A and B, on either side; theta is measured in units of eps * ratio."""
+    dist = 10.0 ** rng.uniform(0, 4, n)
+    a = rng.normal(size=(n, 3))
+    a *= (dist / np.linalg.norm(a, axis=1))[:, None]
+    step = rng.normal(size=(n, 3))
+    step *= (dist * 10.0 ** rng.uniform(-6, np.log10(0.3), n)
+             / np.linalg.norm(step, axis=1))[:, None]
+    a32, b32 = a.astype(np.float32), (a + step).astype(np.float32)
+    a64, b64 = a32.astype(np.float64), b32.astype(np.float64)
+    normal = np.cross(a64, b64)
+    ratio = ((np.linalg.norm(a64, axis=1) + np.linalg.norm(b64, axis=1)) ** 2
+             / np.linalg.norm(normal, axis=1))
+    unit_n = normal / np.linalg.norm(normal, axis=1)[:, None]
+    # an in-plane direction: a mix of A and B, so q sweeps over the cap's own wedge
+    w = rng.uniform(-0.5, 1.5, n)[:, None]
+    along = (1 - w) * a64 + w * b64
+    along /= np.linalg.norm(along, axis=1)[:, None]
+    eps = np.finfo(np.float32).eps
+    units = 10.0 ** rng.uniform(-3, 1, n) * rng.choice([-1.0, 1.0], n)
+    theta = np.clip(units * eps * ratio, -1.0, 1.0)
+    depth = dist * rng.uniform(0.5, 2.0, n)
+    q = (np.cos(theta)[:, None] * along + np.sin(theta)[:, None] * unit_n) * depth[:, None]
+    return a32, b32, q.astype(np.float32), ratio, unit_n
+
+
+def test_cap_plane_rounding_within_the_pad():
+    """The front caps' predicate q' . (A' x B'), evaluated in float32 as the kernels do
+    (ordered, unfused products), takes the wrong sign only for q within
+    FRONT_CAP_PAD_FACTOR eps (|A'| + |B'|)^2 / |A' x B'| of its plane, with a margin."""
+    rng = np.random.default_rng(11)
+    eps = float(np.finfo(np.float32).eps)
+    worst, wrong_total = 0.0, 0
+    for _ in range(4):
+        a32, b32, q32, ratio, unit_n = _front_cap_trials(250_000, rng)
+        cols = [lambda x, k=k: x[:, k] for k in range(3)]
+        ab = cross3([c(a32) for c in cols], [c(b32) for c in cols], np.multiply)
+        got = ordered_dot([c(q32) for c in cols], ab, np.multiply)
+        assert got.dtype == np.float32
+        q64 = q32.astype(np.float64)
+        exact = np.einsum("kd,kd->k", q64, np.cross(a32.astype(np.float64),
+                                                     b32.astype(np.float64)))
+        # the angle of the rounded q (as the kernel sees it) off the exact plane
+        angle = np.abs(np.einsum("kd,kd->k", q64, unit_n)) / np.linalg.norm(q64, axis=1)
+        # float64's own error is ~1e-9 of float32's: exact signs away from zero
+        clear = np.abs(exact) > 1e-12 * np.abs(q64).sum(1) * np.abs(a32).sum(1) \
+            * np.abs(b32).sum(1)
+        wrong = clear & (np.sign(got) != np.sign(exact))
+        wrong_total += int(np.count_nonzero(wrong))
+        if wrong.any():
+            worst = max(worst, float(np.max(angle[wrong] / (eps * ratio[wrong]))))
+    # the trials reach into the rounding zone (the check can fail) ...
+    assert wrong_total > 100
+    # ... and every wrong sign lies well inside the pad's angle
+    assert worst < FRONT_CAP_PAD_FACTOR / 8, worst
+
+
+def test_cap_cells_refine_with_casters_per_sample():
+    assert cap_cells(1000, 100) == (4, 16)
+    assert cap_cells(100, 1000) == (8, 64)
+    assert cap_cells(10, 100_000) == (16, 64)
+
+
+@pytest.mark.parametrize("stencil", ["zpass", "zfail"])
+def test_split_lists_equal_the_full_passes(monkeypatch, stencil, precision):
+    """With every list split into parts of at most 4 entries (each part its own block
+    of the same samples), the binned passes still give the full passes' per-pixel
+    counts and lit mask."""
+    params = {"n": 2, "triangles_per_sphere": 200}
+    scene = sl.load_scene("sphere_grid", **params)
+    view = default_view("sphere_grid", scene, **params)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(32, 32)))
+    full = sl.compute_shadows(scene, gbuf, view.light, method="silhouette", bins="off",
+                              stencil=stencil, precision=precision)
+    calls = []
+    real = bins.batch_arrays
+
+    def spy(grid, b):
+        out = real(grid, b)
+        calls.append((len(grid.block_cell), int(np.count_nonzero(out[2]))))
+        return out
+
+    monkeypatch.setattr(bins, "SPLIT_MIN", 4)
+    monkeypatch.setattr(bins, "SPLIT_OVER_MEAN", 0.0)
+    monkeypatch.setattr("shadowlab.methods.silhouette.batch_arrays", spy)
+    split = sl.compute_shadows(scene, gbuf, view.light, method="silhouette", bins="screen",
+                               stencil=stencil, precision=precision)
+    # some list was split (more non-empty parts than blocks)
+    assert any(parts > blocks for blocks, parts in calls), calls
+    for key in ("stencil_updates_per_pixel", "cap_crossings_per_pixel"):
+        if key in full.counters:
+            assert np.array_equal(np.asarray(full.counters[key]),
+                                  np.asarray(split.counters[key])), key
+    assert np.array_equal(full.lit, split.lit)
