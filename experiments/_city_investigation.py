@@ -1,6 +1,7 @@
 """Why does clustered_ptsv need more test-and-sets than ptsv on a city scene?
 
-Not an experiment (the leading underscore keeps it out of ``shadowlab figures``): an
+Not an experiment (the leading underscore keeps it out of ``shadowlab figures``; the
+experiment ``clustered_city`` measures the claim on the registered ``city`` scene): an
 investigation script, run from the repository root::
 
     PYTHONPATH=. python experiments/_city_investigation.py [RESOLUTION]
@@ -23,11 +24,11 @@ so that the four candidate causes can be told apart:
 from __future__ import annotations
 
 import sys
-import warnings
 
 import numpy as np
 
 import shadowlab as sl
+from shadowlab.analysis.metrics import discontinuity_mask
 from shadowlab.scene import primitives as prim
 from shadowlab.scene.mesh import Scene
 from shadowlab.scene.procedural import framed_view
@@ -60,19 +61,6 @@ def city(blocks: int = 8, posts: int = 40, size: float = 40.0, seed: int = 0) ->
     return Scene(v, np.asarray(f, np.int32), oid.astype(np.int32), names, "city_inline")
 
 
-def steep_mask(gbuf, ratio: float = 2.0) -> np.ndarray:
-    """bool [H, W]: valid pixels whose 8 x 4 tile spans max / min depth > ratio."""
-    h, w = gbuf.shape
-    d = np.full((-(-h // 4) * 4, -(-w // 8) * 8), np.nan)
-    d[:h, :w] = np.where(gbuf.valid, gbuf.depth, np.nan)
-    b = d.reshape(d.shape[0] // 4, 4, d.shape[1] // 8, 8)
-    with warnings.catch_warnings(), np.errstate(all="ignore"):
-        warnings.simplefilter("ignore", RuntimeWarning)
-        steep = np.nanmax(b, axis=(1, 3)) / np.nanmin(b, axis=(1, 3)) > ratio
-    steep = np.repeat(np.repeat(np.nan_to_num(steep, nan=0).astype(bool), 4, 0), 8, 1)
-    return steep[:h, :w] & gbuf.valid
-
-
 CONFIGS = [
     ("ptsv", "ptsv", {}),
     ("ptsv 2011 build", "ptsv", {"tree_samples": "all"}),
@@ -99,7 +87,7 @@ def main(res: int = 128) -> None:
                        resolution=(res, res))
     gbuf = sl.render_gbuffer(scene, view.camera)
     truth = sl.reference_shadows(scene, gbuf, view.light)
-    steep = steep_mask(gbuf)
+    steep = discontinuity_mask(gbuf)
     auto = cluster_layout(view.camera).bits[2]
     print(f"{scene.num_triangles} triangles, {res}x{res}, {int(gbuf.valid.sum())} valid, "
           f"{int(steep.sum())} at discontinuities; auto z bits {auto}")

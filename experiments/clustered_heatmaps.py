@@ -21,11 +21,10 @@
 # %%
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 import shadowlab as sl
+from shadowlab.analysis.metrics import discontinuity_mask
 from shadowlab.harness.claims import measured
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
@@ -37,21 +36,6 @@ VARIANTS = (("ptsv", "ptsv", {}),
             ("ptsv (2011 build)", "ptsv", {"tree_samples": "all"}),
             ("clustered (implicit)", "clustered_ptsv", {"bounds": "implicit"}),
             ("clustered (explicit)", "clustered_ptsv", {"bounds": "explicit"}))
-
-
-def discontinuity_mask(gbuf, ratio: float = 2.0) -> np.ndarray:
-    """bool [H, W]: valid pixels whose 8 x 4 tile holds depths differing by > ratio."""
-    h, w = gbuf.shape
-    th, tw = 4, 8
-    hp, wp = -(-h // th) * th, -(-w // tw) * tw
-    d = np.full((hp, wp), np.nan)
-    d[:h, :w] = np.where(gbuf.valid, gbuf.depth, np.nan)
-    blocks = d.reshape(hp // th, th, wp // tw, tw)
-    with warnings.catch_warnings(), np.errstate(all="ignore"):   # all-empty tiles: NaN
-        warnings.simplefilter("ignore", RuntimeWarning)
-        steep = np.nanmax(blocks, axis=(1, 3)) / np.nanmin(blocks, axis=(1, 3)) > ratio
-    steep = np.repeat(np.repeat(np.nan_to_num(steep, nan=0).astype(bool), th, 0), tw, 1)
-    return steep[:h, :w] & gbuf.valid
 
 
 def leaf_volumes(gbuf, light) -> tuple[np.ndarray, np.ndarray]:

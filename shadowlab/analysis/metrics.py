@@ -95,3 +95,22 @@ def compare_soft(vis: np.ndarray, truth: np.ndarray, valid: np.ndarray,
         "penumbra_mae": p_mae, "penumbra_rmse": p_rmse, "penumbra_max_error": p_mx,
         "penumbra_ssim": p_ssim,
     }
+
+
+def discontinuity_mask(gbuf, ratio: float = 2.0, tile: tuple[int, int] = (4, 8)) -> np.ndarray:
+    """bool [H, W]: valid pixels whose tile (``tile`` = (rows, columns); PTSV's 8 x 4
+    pixels by default) holds view depths differing by more than a factor ``ratio``: the
+    steep depth discontinuities of Sintorn et al. 2014, Fig. 3."""
+    import warnings
+
+    h, w = gbuf.shape
+    th, tw = tile
+    hp, wp = -(-h // th) * th, -(-w // tw) * tw
+    d = np.full((hp, wp), np.nan)
+    d[:h, :w] = np.where(gbuf.valid, gbuf.depth, np.nan)
+    blocks = d.reshape(hp // th, th, wp // tw, tw)
+    with warnings.catch_warnings(), np.errstate(all="ignore"):   # all-empty tiles: NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        steep = np.nanmax(blocks, axis=(1, 3)) / np.nanmin(blocks, axis=(1, 3)) > ratio
+    steep = np.repeat(np.repeat(np.nan_to_num(steep, nan=0).astype(bool), th, 0), tw, 1)
+    return steep[:h, :w] & gbuf.valid

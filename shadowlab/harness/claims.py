@@ -103,6 +103,11 @@ CLAIMS: tuple[Claim, ...] = (
           experiments=("clustered_animation",),
           explain="where PTSV's 8x4 tiles have no depth discontinuity their depth ranges are "
                   "tight, and the deeper tree of 8x8 leaves tests more samples per leaf"),
+    Claim("s14.city.le_ptsv", "S14", "Fig. 6, Sec. 2.1 (a city scene)",
+          "With explicit bounds the hierarchy needs as many test-and-sets as PTSV or fewer, "
+          "also on a city (closed boxes on a ground slab, thin posts in front, a point light "
+          "high above), at every resolution",
+          experiments=("clustered_city",)),
     Claim("s14.fig6.gain2x", "S14", "Fig. 6, Sec. 2.1",
           "In frames with steep depth discontinuities the hierarchy often needs more than 2x "
           "fewer test-and-sets than PTSV",

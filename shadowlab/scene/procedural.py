@@ -1026,6 +1026,9 @@ def _city_view(scene: Scene, params: dict) -> View:
     "and a wall of thin posts, translated by `offset`",
     {"blocks": Param(6, int, 1, 1000, "buildings per side of the square grid"),
      "posts": Param(24, int, 0, 100_000, "thin posts in the wall along the back edge"),
+     "posts_z": Param(-1.0, float, -1.0, 1.0, "where the wall of posts stands, as a fraction "
+                      "of half the slab along z: -1 the back edge, 1 the front edge (between "
+                      "the default camera and the buildings)"),
      "size": Param(40.0, float, 1e-3, 1e6, "side of the ground slab (world units)"),
      "offset": Param((0.0, 0.0, 0.0), tuple, doc="[x, y, z] translation of the scene and "
                      "of its default view (world units)"),
@@ -1038,14 +1041,15 @@ def _city_view(scene: Scene, params: dict) -> View:
                            "roof's plane"),
      "seed": Param(0, int, 0, None, "random seed")},
     _city_view)
-def _city(name: str, blocks: int, posts: int, size: float, offset, defects: int,
-          light_elevation_deg: float, light_height, seed: int) -> Scene:
+def _city(name: str, blocks: int, posts: int, posts_z: float, size: float, offset,
+          defects: int, light_elevation_deg: float, light_height, seed: int) -> Scene:
     """Closed meshes with shared edges, for large-world precision tests.
 
     A ground slab (a closed box of side ``size`` whose top face is y = 0, thickness
     ``size / 40``) carries ``blocks x blocks`` closed boxes (0.6 of a cell wide) with random
     heights of 0.3-1.5 cell widths and a wall of
-    ``posts`` thin closed posts (cross-section ``size / 400``) along the back edge.
+    ``posts`` thin closed posts (cross-section ``size / 400``) along the back edge (or
+    across the slab at ``posts_z``).
     Every box is 12 triangles sharing their edges. ``defects=1`` adds, per building,
     a needle (length/width 1e4) and a sliver (an almost collinear triangle) floating
     above it, a coincident duplicate of its roof with the opposite winding, and a
@@ -1073,8 +1077,10 @@ def _city(name: str, blocks: int, posts: int, size: float, offset, defects: int,
     if posts:
         t = size / 400
         px = np.linspace(-half + t, half - 2 * t, posts)
-        plo = np.stack([px, np.zeros(posts), np.full(posts, -half + t)], 1)
-        phi = np.stack([px + t, np.full(posts, 0.35 * size), np.full(posts, -half + 2 * t)], 1)
+        shift = 0.5 * (posts_z + 1.0) * (size - 3 * t)     # 0 at the back edge
+        plo = np.stack([px, np.zeros(posts), np.full(posts, -half + t + shift)], 1)
+        phi = np.stack([px + t, np.full(posts, 0.35 * size),
+                        np.full(posts, -half + 2 * t + shift)], 1)
         parts.add("posts", prim.boxes(plo, phi))
     if defects:
         top = heights + 0.25 * cell
