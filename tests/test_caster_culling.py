@@ -74,7 +74,7 @@ def test_culled_triangles_meet_no_shadow_ray_of_any_point_of_the_box(seed, kind)
     assert out.any() and hits[:, ~out].any()     # the test is not vacuous
 
 
-@pytest.mark.parametrize("name", ["city", "sphere_grid"])
+@pytest.mark.parametrize("name", ["city", "sphere_grid", "terrain", "gate", "atrium"])
 def test_references_do_not_change_without_the_culled_triangles(name):
     """Embree's hard and soft references on the kept triangles equal those on the whole
     scene: the culled ones shadow nothing."""
@@ -82,13 +82,16 @@ def test_references_do_not_change_without_the_culled_triangles(name):
     view = procedural.default_view(name, scene)
     gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(32, 32)))
     light = view.light
-    hard = sl.PointLight(light.position) if hasattr(light, "position") else light
-    area = sl.SphereLight(position=np.asarray(hard.position), radius=0.05 * scene.diagonal)
+    if getattr(light, "position", None) is not None:
+        hard = sl.PointLight(light.position)
+        area = sl.SphereLight(position=np.asarray(hard.position), radius=0.05 * scene.diagonal)
+    else:                                        # terrain's sun: a directional light
+        hard, area = sl.DirectionalLight(direction=light.direction), light
     culled = 0
     for lt, soft in ((hard, False), (area, True)):
         local = localize(scene, gbuf, lt)
         cull = cc.cull_casters(local.scene, local.gbuf, local.light,
-                               "hull" if soft else "hull_averted", soft=soft)
+                               "hull" if soft else "all", soft=soft)
         kept = cc.subset_scene(local.scene, cull.keep)
         assert kept.diagonal == local.scene.diagonal
         culled += cull.culled
@@ -123,3 +126,41 @@ def test_the_gbuffer_triangle_ids_follow_the_subset():
     assert kept_hit.any() and (hit & ~kept_hit).any()
     np.testing.assert_array_equal(sub.faces[g.triangle[kept_hit]], scene.faces[gbuf.triangle[kept_hit]])
     assert np.all(g.triangle[~kept_hit] == -1)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), kind=st.sampled_from(["point", "directional"]))
+def test_receivers_step_culls_only_triangles_on_no_sample_segment(seed, kind):
+    """Triangles behind every sample of their light-space footprint meet no segment from
+    the light to a sample (a NumPy segment-triangle test), and the step culls some."""
+    rng = np.random.default_rng(seed)
+    # receivers on a bumpy floor, casters above and below it
+    xz = rng.uniform(-2, 2, (600, 2))
+    samples = np.column_stack([xz[:, 0], 0.3 * np.sin(2 * xz[:, 0]) * np.cos(xz[:, 1]),
+                               xz[:, 1]])
+    centres = rng.uniform([-3, -2, -3], [3, 1.5, 3], (400, 3))
+    tri = centres[:, None] + rng.normal(scale=rng.uniform(0.02, 0.6, (400, 1, 1)),
+                                        size=(400, 3, 3))
+    if kind == "point":
+        light_h = np.append(rng.uniform(-3, 3, 3) + [0, 5, 0], 1.0)
+        ends = np.broadcast_to(light_h[:3], samples.shape)
+    else:
+        towards = rng.normal(size=3) + [0, 3, 0]
+        light_h = np.append(towards / np.linalg.norm(towards), 0.0)
+        ends = samples + 50.0 * light_h[:3]
+    culled = cc.behind_receivers(tri, samples, light_h, diag=8.0, cells=16)
+    hits = _segment_hits(samples, np.asarray(ends, float), tri)
+    assert not hits[:, culled].any()
+    assert culled.any() and hits[:, ~culled].any()     # not vacuous
+
+
+def test_point_triangle_distance_equals_a_dense_sampling():
+    rng = np.random.default_rng(3)
+    tri = rng.normal(size=(200, 3, 3))
+    p = rng.normal(size=3) * 2
+    got = cc._point_triangle_distance(p, tri)
+    w = rng.dirichlet(np.ones(3), 20_000)
+    pts = np.einsum("kv,tvd->tkd", w, tri)
+    dense = np.linalg.norm(pts - p, axis=2).min(axis=1)
+    assert np.all(got <= dense + 1e-12)             # a lower bound of every point's distance
+    assert np.all(dense - got < 0.05 * (1 + dense))  # and close to the sampled minimum

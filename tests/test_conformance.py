@@ -200,14 +200,17 @@ CULL_FLOAT64 = ("brute_force", "silhouette", "psv", "izb")
     if registry.get(m).kind is MethodKind.EXACT
     for p in ("float32", "float64") if p == "float32" or m in CULL_FLOAT64])
 def test_caster_culling_leaves_the_lit_mask_unchanged(method, precision):
-    """The shared cull_casters stage (hull and light-averted triangles of closed objects)
-    removes work, never a shadow: the lit mask is bit-identical to the unculled run's."""
+    """The shared cull_casters stage (every step: the hull, light-averted triangles of
+    closed objects, triangles behind the receivers) removes work, never a shadow: the lit
+    mask is bit-identical to the unculled run's."""
     scene, gbuf, light = frame("gate", False)
     plain = runs(method, "gate", precision)[0]
     culled = sl.compute_shadows(scene, gbuf, light, method=method, precision=precision,
-                                cull_casters="hull_averted")
+                                cull_casters="all")
     np.testing.assert_array_equal(culled.lit, plain.lit)
     c = culled.counters
-    assert c["culled_casters"] == c["culled_casters_hull"] + c["culled_casters_averted"]
+    assert c["culled_casters"] == (c["culled_casters_hull"] + c["culled_casters_averted"]
+                                   + c["culled_casters_receivers"])
     assert c["culled_casters_averted"] > 0          # gate's parts are closed
+    assert c["culled_casters_receivers"] > 0
     assert "cull_casters" in culled.timings and "culled_casters" not in plain.counters

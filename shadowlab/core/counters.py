@@ -29,11 +29,13 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("lit", "int", "pixels reported lit"),
     # the shared caster culling stage (option cull_casters; geometry.caster_culling)
     Counter("culled_casters", "int", "triangles removed before the method ran by the "
-            "cull_casters option (hull and averted together; 0 when off)"),
+            "cull_casters option (every step together; 0 when off)"),
     Counter("culled_casters_hull", "int", "of those, triangles outside the convex hull of "
             "the samples' shadow rays"),
     Counter("culled_casters_averted", "int", "of those, triangles of closed objects facing "
             "away from the light"),
+    Counter("culled_casters_receivers", "int", "of those, triangles behind every sample of "
+            "their light-space footprint (receiver-driven culling)"),
     # per-triangle shadow volumes over a hierarchy (clustered_ptsv, ptsv)
     Counter("front_face_culled", "int", "triangles of closed objects dropped by face culling "
             "(the side given by the cull_side option)"),

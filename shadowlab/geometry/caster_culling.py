@@ -18,6 +18,16 @@ cone). Two exact tests remove triangles that meet no such set for any sample:
 - ``averted`` (hard shadows only): the triangles of closed objects whose outward side
   faces away from the light (a segment that ends at a light outside the object leaves
   it through a light-facing triangle, wherever it starts; ``front_face_culled``).
+- ``receivers`` (hard shadows only; the receiver-driven culling of CC shadow volumes,
+  Lloyd et al. 2004, with a light-space max-depth grid of the samples): a blocker of a
+  sample p lies on the segment from the light to p, so it has p's direction from the
+  light and is nearer to the light than p. The samples' light-space positions go into a
+  grid (a cube map of directions around a point light, a plane perpendicular to a
+  directional light) that keeps each cell's largest depth (distance from a point light,
+  distance along a directional light). A triangle whose nearest point to the light is
+  farther than every sample in the cells of its (dilated) footprint shadows none of them
+  (``behind_receivers``). Triangles whose footprint cannot be bounded on one cube face
+  are kept.
 
 The cull returns a :class:`~shadowlab.scene.mesh.Scene.subset` that keeps the parent's
 bounds (so the shadow offset, a fraction of the diagonal, is unchanged), and the
@@ -40,8 +50,18 @@ from ..reference.raycast import _orthonormal
 from ..scene.caches import per_scene_cache
 from ..scene.view import DirectionalLight, PointLight, SphereLight, hard_light
 
-#: the modes of the common method option ``cull_casters``
-CULL_MODES = ("off", "hull", "hull_averted")
+#: the modes of the common method option ``cull_casters``: the steps each runs
+CULL_MODES = ("off", "hull", "hull_averted", "hull_receivers", "all")
+_STEPS = {"off": (), "hull": ("hull",), "hull_averted": ("hull", "averted"),
+          "hull_receivers": ("hull", "receivers"), "all": ("hull", "averted", "receivers")}
+#: cells per side of the receivers' depth grid (per cube face for a point light)
+RECEIVER_GRID = 64
+#: the receivers step's depth margin: a triangle is culled only when its nearest point is
+#: farther than the farthest sample of its cells by this fraction of the scene diagonal
+#: plus DEPTH_REL of the sample's depth (float32 rounding of the methods' own tests is
+#: about 1e-7 of either)
+DEPTH_PAD = 1e-4
+DEPTH_REL = 1e-5
 #: outward padding of the hull, a fraction of the scene diagonal
 PAD = 1e-6
 #: the sides ``front_face_culled`` can drop
@@ -146,6 +166,149 @@ def outside_hull(triangles: np.ndarray, planes: np.ndarray, pad: float) -> np.nd
     return out
 
 
+def _point_triangle_distance(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """float64 [T]: the distance from the point p [3] to each triangle of ``tri``
+    [T, 3, 3] (its nearest point: inside, on an edge or a vertex)."""
+    a, b, c = tri[:, 0] - p, tri[:, 1] - p, tri[:, 2] - p
+    n = np.cross(b - a, c - a)
+    nn = np.einsum("ij,ij->i", n, n)
+    ok = nn > 0
+    # the foot of the perpendicular from p (the origin here) is inside iff it lies on
+    # the inner side of every edge
+    h = np.where(ok, np.einsum("ij,ij->i", n, a) / np.where(ok, nn, 1.0), 0.0)
+    foot = h[:, None] * n
+    inside = ok & np.all([np.einsum("ij,ij->i", np.cross(y - x, foot - x), n) >= 0
+                          for x, y in ((a, b), (b, c), (c, a))], axis=0)
+    plane = np.abs(h) * np.sqrt(nn)
+
+    def segment(x, y):
+        d = y - x
+        dd = np.einsum("ij,ij->i", d, d)
+        t = np.clip(-np.einsum("ij,ij->i", x, d) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
+        return np.linalg.norm(x + t[:, None] * d, axis=1)
+
+    edges = np.minimum(np.minimum(segment(a, b), segment(b, c)), segment(c, a))
+    return np.where(inside, np.minimum(plane, edges), edges)
+
+
+def _max_pyramid(grid: np.ndarray) -> list[np.ndarray]:
+    """The max-mip pyramid of ``grid`` [F, G, G] (G a power of two): level l [F, G/2^l,
+    G/2^l] holds the largest value of the cells it covers."""
+    levels = [grid]
+    while levels[-1].shape[-1] > 1:
+        g = levels[-1]
+        f, n = g.shape[0], g.shape[-1] // 2
+        levels.append(g.reshape(f, n, 2, n, 2).max(axis=(2, 4)))
+    return levels
+
+
+def _range_max(levels: list[np.ndarray], face, i0, i1, j0, j1) -> np.ndarray:
+    """float64 [T]: an upper bound of the largest value over the cells [i0..i1] x [j0..j1]
+    of each face (the largest over the at most 2 x 2 cells of the first pyramid level
+    whose cells cover that range)."""
+    out = np.full(len(face), -np.inf)
+    todo = np.ones(len(face), bool)
+    for level, g in enumerate(levels):
+        a0, a1, b0, b1 = i0 >> level, i1 >> level, j0 >> level, j1 >> level
+        fit = todo & (a1 - a0 <= 1) & (b1 - b0 <= 1)
+        if fit.any():
+            f = face[fit]
+            out[fit] = np.maximum.reduce([g[f, x[fit], y[fit]]
+                                          for x in (a0, a1) for y in (b0, b1)])
+            todo &= ~fit
+        if not todo.any():
+            break
+    return out
+
+
+def behind_receivers(triangles: np.ndarray, samples: np.ndarray, light_h: np.ndarray,
+                     diag: float, cells: int = RECEIVER_GRID) -> np.ndarray:
+    """bool [T]: the triangles [T, 3, 3] that lie behind every sample [S, 3] in their
+    light-space footprint, so shadow none (the ``receivers`` step; float64, frame-local
+    coordinates; ``light_h`` [4] homogeneous, w = 0 for a directional light given as the
+    direction towards it; ``diag`` the scene diagonal, world units).
+
+    The footprint is dilated by one cell, and a triangle is culled only when its
+    nearest depth exceeds the cells' largest by ``DEPTH_PAD diag + DEPTH_REL depth``."""
+    if len(samples) == 0 or len(triangles) == 0:
+        return np.zeros(len(triangles), bool)
+    pad = DEPTH_PAD * diag
+    if light_h[3] == 0:
+        w = np.asarray(light_h[:3], np.float64)
+        w = w / np.linalg.norm(w)
+        e1, e2 = _orthonormal(w)
+        basis = np.stack([e1, e2, -w], 1)              # (u, v, depth away from the light)
+        sp, tp = samples @ basis, triangles @ basis
+        lo, hi = sp[:, :2].min(axis=0), sp[:, :2].max(axis=0)
+        size = np.maximum(hi - lo, 1e-12 * diag) / cells
+        si = np.clip(((sp[:, :2] - lo) / size).astype(np.int64), 0, cells - 1)
+        grid = np.full((1, cells, cells), -np.inf)
+        np.maximum.at(grid, (0, si[:, 0], si[:, 1]), sp[:, 2])
+        tlo = np.floor((tp[:, :, :2].min(axis=1) - lo) / size).astype(np.int64) - 1
+        thi = np.floor((tp[:, :, :2].max(axis=1) - lo) / size).astype(np.int64) + 1
+        outside = np.any(thi < 0, axis=1) | np.any(tlo > cells - 1, axis=1)
+        tlo, thi = np.clip(tlo, 0, cells - 1), np.clip(thi, 0, cells - 1)
+        far = _range_max(_max_pyramid(grid), np.zeros(len(tp), np.int64), tlo[:, 0],
+                         thi[:, 0], tlo[:, 1], thi[:, 1])
+        near = tp[:, :, 2].min(axis=1)
+        depth_scale = np.abs(sp[:, 2]).max()
+        return outside | (near > far + pad + DEPTH_REL * depth_scale)
+    light = np.asarray(light_h[:3], np.float64) / light_h[3]
+    d = samples - light
+    dist = np.linalg.norm(d, axis=1)
+    if dist.min() <= pad:          # a sample at the light: directions are not defined
+        return np.zeros(len(triangles), bool)
+    # cube faces, each extended by two cells on every side, so a sample within two cells
+    # of a face's border is also recorded on the neighbouring face
+    h = 2.0 / cells
+    ext = 1.0 + 2 * h
+    n = cells + 4
+    size = 1 << int(np.ceil(np.log2(n)))
+    grid = np.full((6, size, size), -np.inf)
+    td = triangles - light
+    face_of = np.full(len(td), -1)
+    centroid = td.mean(axis=1)
+    major = np.argmax(np.abs(centroid), axis=1)
+    tsign = np.sign(centroid[np.arange(len(td)), major])
+    t_ij = np.zeros((len(td), 4), np.int64)
+    for axis in range(3):
+        b, c = [k for k in range(3) if k != axis]
+        for sign in (-1.0, 1.0):
+            face = 2 * axis + (sign > 0)
+            along = sign * d[:, axis]
+            on = along > 0
+            u = d[on, b] / along[on]
+            v = d[on, c] / along[on]
+            rec = (np.abs(u) <= ext) & (np.abs(v) <= ext)
+            iu = ((u[rec] + ext) / h).astype(np.int64)
+            iv = ((v[rec] + ext) / h).astype(np.int64)
+            np.maximum.at(grid, (face, np.minimum(iu, n - 1), np.minimum(iv, n - 1)),
+                          dist[on][rec])
+            # triangles: all three corners in front of this face, inside its recorded
+            # part less one cell (so their dilated footprint's samples were recorded)
+            mine = (major == axis) & (tsign == sign)
+            ta = sign * td[mine][:, :, axis]
+            front = np.all(ta > 0, axis=1)
+            tu = td[mine][:, :, b] / np.where(front[:, None], ta, 1.0)
+            tv = td[mine][:, :, c] / np.where(front[:, None], ta, 1.0)
+            fits = front & np.all(np.abs(tu) <= ext - h, axis=1) & \
+                np.all(np.abs(tv) <= ext - h, axis=1)
+            idx = np.flatnonzero(mine)[fits]
+            face_of[idx] = face
+            t_ij[idx] = np.stack([
+                np.floor((tu[fits].min(axis=1) + ext) / h).astype(np.int64) - 1,
+                np.floor((tu[fits].max(axis=1) + ext) / h).astype(np.int64) + 1,
+                np.floor((tv[fits].min(axis=1) + ext) / h).astype(np.int64) - 1,
+                np.floor((tv[fits].max(axis=1) + ext) / h).astype(np.int64) + 1], 1)
+    bounded = face_of >= 0
+    t_ij = np.clip(t_ij, 0, n - 1)
+    far = np.full(len(td), np.inf)
+    far[bounded] = _range_max(_max_pyramid(grid), face_of[bounded], t_ij[bounded, 0],
+                              t_ij[bounded, 1], t_ij[bounded, 2], t_ij[bounded, 3])
+    near = _point_triangle_distance(light, triangles)
+    return bounded & (near > far + pad + DEPTH_REL * np.where(np.isfinite(far), far, 0.0))
+
+
 @dataclasses.dataclass(frozen=True)
 class CasterCull:
     """What :func:`cull_casters` removed.
@@ -154,21 +317,24 @@ class CasterCull:
         keep: bool [T], the triangles passed on.
         hull: triangles outside the hull of the samples' shadow rays.
         averted: further triangles of closed objects facing away from the light.
+        receivers: further triangles behind every sample in their light-space footprint.
     """
 
     keep: np.ndarray
     hull: int
     averted: int
+    receivers: int = 0
 
     @property
     def culled(self) -> int:
-        return self.hull + self.averted
+        return self.hull + self.averted + self.receivers
 
 
 def cull_casters(scene, gbuf, light, mode: str, soft: bool = False) -> CasterCull:
     """The casters ``mode`` (one of ``CULL_MODES``) keeps for this frame (frame-local
     ``scene`` [T triangles], ``gbuf`` and ``light``); ``soft`` for an area-light method
-    (``averted`` is not used then: an area light sees both sides of a triangle)."""
+    (``averted`` and ``receivers`` are not used then: an area light sees both sides of a
+    triangle, and a sample's blockers lie on many segments)."""
     if mode not in CULL_MODES:
         raise ValueError(f"mode must be one of {CULL_MODES}, got {mode!r}")
     keep = np.ones(scene.num_triangles, bool)
@@ -182,15 +348,24 @@ def cull_casters(scene, gbuf, light, mode: str, soft: bool = False) -> CasterCul
     lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
     planes = hull_planes(hull_points(lo, hi, light, 2.0 * diag, soft), tol=pad)
     outside = outside_hull(scene.triangles, planes, pad)
+    steps = _STEPS[mode]
+    step = np.where(outside, 1, 0)          # the step that dropped each triangle: 1, 2, 3
     keep &= ~outside
-    averted = 0
-    if mode == "hull_averted" and not soft:
+    if "averted" in steps and not soft:
         drop = front_face_culled(scene, hard_light(light).homogeneous, "averted") & keep
-        averted = int(drop.sum())
+        step[drop] = 2
+        keep &= ~drop
+    if "receivers" in steps and not soft:
+        drop = np.zeros_like(keep)
+        drop[keep] = behind_receivers(scene.triangles[keep], pts,
+                                      hard_light(light).homogeneous, diag)
+        step[drop] = 3
         keep &= ~drop
     if not keep.any():          # methods expect a caster: keep one that shadows nothing
-        keep[int(np.flatnonzero(outside)[0]) if outside.any() else 0] = True
-    return CasterCull(keep, int(outside.sum()) - int(keep[outside].sum()), averted)
+        first = int(np.flatnonzero(step)[0]) if step.any() else 0
+        keep[first], step[first] = True, 0
+    counts = np.bincount(step, minlength=4)
+    return CasterCull(keep, int(counts[1]), int(counts[2]), int(counts[3]))
 
 
 def subset_gbuffer(gbuf, keep: np.ndarray):
@@ -221,6 +396,6 @@ def subset_scene(scene, keep: np.ndarray):
     return out
 
 
-__all__ = ["CULL_MODES", "CULL_SIDES", "CasterCull", "PAD", "cull_casters",
+__all__ = ["CULL_MODES", "CULL_SIDES", "CasterCull", "PAD", "behind_receivers", "cull_casters",
            "front_face_culled", "hull_planes", "hull_points", "outside_hull", "subset_gbuffer",
            "subset_scene"]

@@ -31,7 +31,9 @@ COMMON_OPTIONS: dict[str, Option] = {
                            "before the method runs (shared stage, exact): 'hull' outside "
                            "the hull of the samples' shadow rays, 'hull_averted' also "
                            "closed objects' triangles facing away from the light (hard "
-                           "shadows)", allowed=caster_culling.CULL_MODES),
+                           "shadows), 'hull_receivers' also triangles behind every sample "
+                           "of their light-space footprint (hard shadows), 'all' every "
+                           "step", allowed=caster_culling.CULL_MODES),
 }
 
 _REGISTRY: dict[str, MethodInfo] = {}
@@ -224,7 +226,8 @@ def _cull(info: MethodInfo, local, mode: str):
         return dataclasses.replace(
             result, counters={**result.counters, "culled_casters": cull.culled,
                               "culled_casters_hull": cull.hull,
-                              "culled_casters_averted": cull.averted},
+                              "culled_casters_averted": cull.averted,
+                              "culled_casters_receivers": cull.receivers},
             timings={**result.timings, "cull_casters": seconds})
     return casters, gbuf, add
 
