@@ -164,3 +164,14 @@ def test_point_triangle_distance_equals_a_dense_sampling():
     dense = np.linalg.norm(pts - p, axis=2).min(axis=1)
     assert np.all(got <= dense + 1e-12)             # a lower bound of every point's distance
     assert np.all(dense - got < 0.05 * (1 + dense))  # and close to the sampled minimum
+
+
+def test_receivers_directional_grid_keeps_a_triangle_within_float32_of_a_lone_sample():
+    """With one sample (a grid of zero extent) a triangle whose edge passes within float32
+    rounding of the sample's ray is kept; a grid size that is not a power of two works."""
+    p = np.array([[0.3, 0.3, 0.3]])
+    tri = np.array([[[0.3 + 1e-9, -1, 1.0], [0.3 + 1e-9, 1, 1.0], [1.3, 0.3, 1.0]]])
+    light = np.array([0.0, 0.0, 1.0, 0.0])
+    assert not cc.behind_receivers(tri, p, light, 1.0).any()
+    far = np.array([[[5.0, 5.0, -1.0], [6.0, 5.0, -1.0], [5.0, 6.0, -1.0]]])  # behind, aside
+    assert cc.behind_receivers(far, p, light, 1.0, cells=48).all()

@@ -240,9 +240,13 @@ def behind_receivers(triangles: np.ndarray, samples: np.ndarray, light_h: np.nda
         basis = np.stack([e1, e2, -w], 1)              # (u, v, depth away from the light)
         sp, tp = samples @ basis, triangles @ basis
         lo, hi = sp[:, :2].min(axis=0), sp[:, :2].max(axis=0)
-        size = np.maximum(hi - lo, 1e-12 * diag) / cells
+        # cells never narrower than the methods' float32 rounding of the coordinates
+        # (the one-cell dilation must cover it, also when the samples span nothing)
+        reach = diag + float(np.abs(sp).max()) + float(np.abs(tp).max())
+        size = np.maximum(hi - lo, 64 * 1e-6 * reach) / cells
         si = np.clip(((sp[:, :2] - lo) / size).astype(np.int64), 0, cells - 1)
-        grid = np.full((1, cells, cells), -np.inf)
+        side = 1 << int(np.ceil(np.log2(cells)))     # the pyramid halves a power of two
+        grid = np.full((1, side, side), -np.inf)
         np.maximum.at(grid, (0, si[:, 0], si[:, 1]), sp[:, 2])
         tlo = np.floor((tp[:, :, :2].min(axis=1) - lo) / size).astype(np.int64) - 1
         thi = np.floor((tp[:, :, :2].max(axis=1) - lo) / size).astype(np.int64) + 1
