@@ -281,3 +281,74 @@ def test_terrain_side_test_is_well_conditioned_near_a_crease(precision):
     assert res.lit[28, 119] and res.counters["stencil_updates_per_pixel"][28, 119] == 0
     assert int(((res.lit != truth) & gbuf.valid).sum()) == 0
     assert int((~truth & gbuf.valid).sum()) > 0          # the window holds shadow too
+
+
+def _closed_mesh_crossings(vertices, faces, q, dtype):
+    """(signed count, crossings) [Q] of the eye rays lambda q' (lambda > 0, eye at the
+    origin) with a closed mesh, through the method's cap predicates in ``dtype``: each
+    crossed triangle adds sgn(n_T . q'), so a closed surface sums to 0."""
+    import jax
+
+    with jax.enable_x64(dtype == "float64"):
+        return _crossings_in(vertices.astype(dtype), faces, q.astype(dtype))
+
+
+def _crossings_in(v, faces, q):
+    import jax.numpy as jnp
+
+    from shadowlab.engines.silhouette_stencil import cap_kernel, edge_table, vertex_terms
+    from shadowlab.methods.silhouette import triangle_signs
+
+    dtype = v.dtype
+    light = np.asarray([0.0, 50.0, 0.0, 1.0], dtype)          # not used by the front caps
+    srt = np.sort(faces, axis=1)
+    # +1 where sorting is an even permutation of the face's winding: s_T sgn(n_T . q')
+    # with n_T from the sorted vertices is then sgn(n_face . q')
+    order = np.argsort(faces, axis=1)
+    parity = np.where((order[:, 1] - order[:, 0]) % 3 == 1, 1, -1).astype(np.int32)
+    edges = np.concatenate([srt[:, [0, 1]], srt[:, [1, 2]], srt[:, [0, 2]]])
+    uniq, inv = np.unique(edges, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    vt = vertex_terms(jnp.asarray(v), jnp.asarray(light))
+    table = np.asarray(edge_table(jnp.asarray(v[uniq[:, 0]]), jnp.asarray(v[uniq[:, 1]]),
+                                  vt[uniq[:, 0]], vt[uniq[:, 1]], jnp.asarray(light)))
+    rows = table[inv.reshape(3, -1).T]                                 # [T, 3, 16]
+    _, terms = triangle_signs(*(jnp.asarray(v[srt[:, k]]) for k in range(3)),
+                              jnp.asarray(light))
+    chunk = 8
+    t = len(faces)
+    cap = -(-t // chunk) * chunk
+    pad = lambda x: np.concatenate([x, np.zeros((cap - t, *x.shape[1:]), x.dtype)])  # noqa: E731
+    run = cap_kernel(chunk, "eye_ray", False)
+    count, hits = run(jnp.asarray(q), jnp.asarray(pad(rows)),
+                      jnp.asarray(pad(np.asarray(terms))), jnp.asarray(pad(parity)),
+                      jnp.asarray(0, jnp.int32))
+    return np.asarray(count), np.asarray(hits)
+
+
+@pytest.mark.parametrize("centre", [(11.3, -24.2, -30.7), (25.0, -7.0, -30.0)])
+def test_caps_of_a_small_far_mesh_are_watertight_near_its_vertices(centre, precision):
+    """A closed icosphere 3 cm edges across, 40 units from the eye: view rays aimed
+    within 1e-5 radians of its vertices must cross it an even number of times with
+    signs summing to 0. Two float32 faults broke this (both seen as false shadows with
+    negative stencils on a 1M-triangle sphere grid): the edge rows' A' x B' formed
+    directly (products of 40 x 40 cancelling to 40 x 0.03, each edge's plane off by up
+    to 7 mm, so the wedges of a vertex's fan overlapped or left gaps: thousands of these
+    rays failed), and the (lo, hi) edge's bit taken as ``<= 0`` rather than the
+    complement of ``>= 0`` (a dot product of exactly 0 put the ray inside both
+    triangles of that edge or neither: 10 to 20 of them). Rays are aimed only at
+    vertices whose surface faces the eye (|cos| > 0.3): within float32 rounding of the
+    mesh's own silhouette an edge-on triangle's side cannot be decided in float32."""
+    import trimesh
+
+    ico = trimesh.creation.icosphere(subdivisions=3, radius=0.15)
+    verts = ico.vertices + np.asarray(centre)
+    facing = np.abs((ico.vertex_normals * verts).sum(1)) / np.linalg.norm(verts, axis=1)
+    aims = np.repeat(verts[facing > 0.3], 24, axis=0)
+    dirs = aims / np.linalg.norm(aims, axis=1, keepdims=True)
+    dirs = dirs + np.random.default_rng(5).normal(scale=1e-5, size=dirs.shape)
+    q = dirs * 60.0                                             # beyond the mesh
+    count, hits = _closed_mesh_crossings(verts, ico.faces, q, precision)
+    assert (hits > 0).sum() > len(q) // 2                     # most rays do hit it
+    assert np.all(count == 0), np.flatnonzero(count)[:10]
+    assert np.all(hits % 2 == 0)
