@@ -23,6 +23,7 @@
 from __future__ import annotations
 
 import statistics
+import sys
 import time
 
 import numpy as np
@@ -44,31 +45,42 @@ def _frame(cfg, **params):
     return scene, gbuf, view.light
 
 
-def _timed(fn, repeats):
+def _timed(fn, repeats, slow_seconds=float("inf")):
+    """(result, median warm seconds, warm runs). The first call compiles and warms; a
+    call whose first run took ``slow_seconds`` or more is timed once instead of
+    ``repeats`` times (its run-to-run spread is small against its length, and the full
+    sweep's largest scenes take minutes a call)."""
+    t0 = time.perf_counter()
     fn()                                   # compile and warm
+    first = time.perf_counter() - t0
     times, out = [], None
-    for _ in range(repeats):
+    for _ in range(repeats if first < slow_seconds else 1):
         t0 = time.perf_counter()
         out = fn()
         times.append(time.perf_counter() - t0)
-    return out, statistics.median(times)
+    return out, statistics.median(times), len(times)
 
 
-def _sweep(cfg, points, key, repeats):
+def _sweep(cfg, points, key, repeats, bar):
     rows = []
+    slow = float(cfg.get("slow_seconds", float("inf")))
+    timed = lambda label, fn: (bar.set_postfix_str(label, refresh=True),  # noqa: E731
+                               _timed(fn, repeats, slow))[1]
     for value in points:
+        bar.set_description(f"{key} {value}")
         if key == "objects":
             params = {"triangles_per_sphere": int(cfg["params"]["triangles_per_sphere"]),
                       "objects": int(value)}
         else:
             params = {"triangles_per_sphere": int(value)}
         scene, gbuf, light = _frame(cfg, **params)
-        truth, t_ref = _timed(lambda: sl.reference_shadows(scene, gbuf, light), repeats)
+        truth, t_ref, _ = timed("embree", lambda: sl.reference_shadows(scene, gbuf, light))
         row = {"triangles": scene.num_triangles, "embree_seconds": t_ref}
         for name, opts in VARIANTS.items():
-            res, t = _timed(lambda: sl.compute_shadows(scene, gbuf, light,
-                                                        method="silhouette", **opts), repeats)
+            res, t, runs = timed(name, lambda: sl.compute_shadows(
+                scene, gbuf, light, method="silhouette", **opts))
             row[f"{name}_seconds"] = t
+            row[f"{name}_runs"] = runs
             row[f"{name}_mismatches"] = int(((res.lit != truth) & gbuf.valid).sum())
             row[f"{name}_unexplained"] = unexplained_count(scene, gbuf, light, res.lit, truth)
             for w in WORK:
@@ -79,28 +91,35 @@ def _sweep(cfg, points, key, repeats):
                     float(res.timings.get(f"{stage}_bins", 0.0))
         # O(samples x triangles): only up to a tessellation of per_triangle_max
         if int(params["triangles_per_sphere"]) <= int(cfg.get("per_triangle_max", 0)):
-            res, t = _timed(lambda: sl.compute_shadows(scene, gbuf, light, method="zpass"),
-                            repeats)
+            res, t, _ = timed("per-triangle zpass", lambda: sl.compute_shadows(
+                scene, gbuf, light, method="zpass"))
             row["per_triangle_seconds"] = t
             row["per_triangle_updates"] = int(res.counters["stencil_updates"])
         else:
             row["per_triangle_seconds"] = np.nan
             row["per_triangle_updates"] = -1
         for r in cfg.get("shadow_map_resolutions") or []:
-            res, t = _timed(lambda: sl.compute_shadows(
-                scene, gbuf, light, method="shadow_map", resolution=int(r)), repeats)
+            res, t, _ = timed(f"shadow map {r}", lambda: sl.compute_shadows(
+                scene, gbuf, light, method="shadow_map", resolution=int(r)))
             row[f"sm{r}_seconds"] = t
             row[f"sm{r}_mismatches"] = int(((res.lit != truth) & gbuf.valid).sum())
         rows.append(row)
+        bar.update()
     return {k: np.asarray([r[k] for r in rows]) for k in rows[0]}
 
 
 def run(cfg: dict) -> dict:
     """Arrays ``tri_<column>`` [len(triangles_per_sphere)] and ``obj_<column>``
-    [len(objects)]: counters, warm seconds (median of ``repeats``), mismatches."""
+    [len(objects)]: counters, warm seconds (median of ``repeats``, or of one run where
+    the warm-up took ``slow_seconds`` or more; ``<variant>_runs`` says which),
+    mismatches. A progress bar on stderr counts sweep points and names the running call."""
+    from tqdm import tqdm
+
     repeats = int(cfg.get("repeats", 2))
-    tri = _sweep(cfg, cfg["triangles_per_sphere_sweep"], "triangles", repeats)
-    obj = _sweep(cfg, cfg["objects_sweep"], "objects", repeats)
+    points = len(cfg["triangles_per_sphere_sweep"]) + len(cfg["objects_sweep"])
+    with tqdm(total=points, unit="point", file=sys.stderr, mininterval=0) as bar:
+        tri = _sweep(cfg, cfg["triangles_per_sphere_sweep"], "triangles", repeats, bar)
+        obj = _sweep(cfg, cfg["objects_sweep"], "objects", repeats, bar)
     arrays = {f"tri_{k}": v for k, v in tri.items()}
     arrays.update({f"obj_{k}": v for k, v in obj.items()})
     arrays["tri_points"] = np.asarray(cfg["triangles_per_sphere_sweep"])

@@ -61,6 +61,7 @@ class ExperimentConfig(BaseModel):
                                    item_wanted="two positive integers [width, height]")] = None
     frames: number(int, ge=1, optional=True) = None
     repeats: number(int, ge=1, optional=True) = None
+    slow_seconds: number(float, gt=0, unit=" (seconds)", optional=True) = None
     precision: Optional[Literal["float32", "float64"]] = None
     seeds: _ints(0) = None
     # method settings under study
