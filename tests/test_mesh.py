@@ -118,3 +118,39 @@ def test_parameters_for_a_file_are_an_error(tmp_path):
     _box().export(path)
     with pytest.raises(SceneError, match="only for procedural"):
         load_scene(path, seed=3)
+
+
+def _report_per_object(scene):
+    """Plain loop: each object's edges keyed by welded position, counted one by one."""
+    weld = {}
+    canon = np.array([weld.setdefault(tuple(p), len(weld)) for p in scene.vertices.tolist()])
+    from shadowlab.scene.mesh import degenerate_mask
+
+    degenerate = degenerate_mask(scene.triangles)
+    out = []
+    for oid in range(len(scene.object_names)):
+        uses = {}
+        for t in np.flatnonzero((scene.object_id == oid) & ~degenerate):
+            f = canon[scene.faces[t]]
+            for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+                if a != b:
+                    key = (min(a, b), max(a, b))
+                    n, o = uses.get(key, (0, 0))
+                    uses[key] = (n + 1, o + (1 if a < b else -1))
+        open_ = sum(n == 1 for n, _ in uses.values())
+        nm = sum(n > 2 for n, _ in uses.values())
+        consistent = all(o == 0 for n, o in uses.values() if n == 2)
+        out.append((bool(uses) and open_ == 0 and nm == 0 and consistent, open_, nm))
+    return out
+
+
+@pytest.mark.parametrize("name,params", [("soup", {}), ("sphere_grid", {"n": 2, "objects": 7}),
+                                         ("gate", {})])
+def test_mesh_report_equals_a_per_object_loop(name, params):
+    scene = load_scene(name, **params)
+    rep = mesh_report(scene)
+    want = _report_per_object(scene)
+    got = [(o.closed, o.open_edges, o.nonmanifold_edges) for o in rep.objects]
+    assert got == want
+    assert rep.open_edges == sum(w[1] for w in want)
+    assert any(w[0] for w in want) or name == "soup"

@@ -301,47 +301,58 @@ def degenerate_mask(triangles: np.ndarray, rel_eps: float = 1e-12) -> np.ndarray
     return area2 <= rel_eps * ext ** 4
 
 
-def _edge_topology(faces: np.ndarray, vertices: np.ndarray):
-    """Edges keyed by vertex *position* (soup may duplicate vertices).
+def _edge_topology(faces: np.ndarray, vertices: np.ndarray, object_id: np.ndarray):
+    """Edges keyed by object and vertex *position* (soup may duplicate vertices), for
+    all objects at once (one weld and one sort, not one per object: per object, a
+    15,600-object scene took about 75 minutes).
 
-    Returns, per undirected edge: use count, and the signed sum of its directed uses
-    (zero for a consistently oriented pair).
+    faces int [F, 3], vertices [V, 3], object_id int [F]. Returns, per undirected edge
+    (object, A, B): its object, use count, and the signed sum of its directed uses (zero
+    for a consistently oriented pair).
     """
     _, canon = np.unique(vertices, axis=0, return_inverse=True)
-    canon = canon.reshape(-1)
+    canon = canon.reshape(-1).astype(np.int64)
     f = canon[faces]
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    obj = np.tile(np.asarray(object_id, np.int64), 3)
     keep = directed[:, 0] != directed[:, 1]
-    directed = directed[keep]
+    directed, obj = directed[keep], obj[keep]
     lo = directed.min(axis=1)
     hi = directed.max(axis=1)
     sign = np.where(directed[:, 0] < directed[:, 1], 1, -1)
-    key = lo.astype(np.int64) * (int(canon.max()) + 1) + hi
-    uniq, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
-    orient = np.zeros(len(uniq), dtype=np.int64)
-    np.add.at(orient, inv, sign)
-    return counts, orient
+    n = int(canon.max()) + 1 if len(canon) else 1
+    if (int(obj.max(initial=0)) + 1) * n * n < 2 ** 62:
+        _, first, inv, counts = np.unique((obj * n + lo) * n + hi, return_index=True,
+                                          return_inverse=True, return_counts=True)
+    else:                                                   # keys would overflow int64
+        _, first, inv, counts = np.unique(np.stack([obj, lo, hi], axis=1), axis=0,
+                                          return_index=True, return_inverse=True,
+                                          return_counts=True)
+    inv = inv.reshape(-1)
+    orient = np.bincount(inv, weights=sign, minlength=len(counts)).astype(np.int64)
+    return obj[first], counts, orient
 
 
 def mesh_report(scene: Scene) -> SceneReport:
     """Count degenerate triangles, open and non-manifold edges; find closed objects."""
     degenerate = degenerate_mask(scene.triangles)
-    objects = []
-    total_open = total_nm = 0
-    for oid, name in enumerate(scene.object_names):
-        sel = scene.object_id == oid
-        faces = scene.faces[sel & ~degenerate]
-        if len(faces) == 0:
-            objects.append(ObjectReport(oid, name, int(sel.sum()), False, 0, 0))
-            continue
-        counts, orient = _edge_topology(faces, scene.vertices)
-        open_edges = int((counts == 1).sum())
-        nonmanifold = int((counts > 2).sum())
-        consistent = bool(np.all(orient[counts == 2] == 0))
-        closed = open_edges == 0 and nonmanifold == 0 and consistent
-        objects.append(ObjectReport(oid, name, int(sel.sum()), closed, open_edges, nonmanifold))
-        total_open += open_edges
-        total_nm += nonmanifold
+    n_obj = len(scene.object_names)
+    object_id = np.asarray(scene.object_id)
+    kept = ~degenerate
+    edge_obj, counts, orient = _edge_topology(scene.faces[kept], scene.vertices,
+                                              object_id[kept])
+    per = lambda mask: np.bincount(edge_obj[mask], minlength=n_obj)  # noqa: E731
+    open_edges, nonmanifold = per(counts == 1), per(counts > 2)
+    inconsistent = per((counts == 2) & (orient != 0))
+    triangles = np.bincount(object_id, minlength=n_obj)
+    usable = np.bincount(object_id[kept], minlength=n_obj)
+    objects = tuple(
+        ObjectReport(oid, name, int(triangles[oid]),
+                     bool(usable[oid] and open_edges[oid] == 0 and nonmanifold[oid] == 0
+                          and inconsistent[oid] == 0),
+                     int(open_edges[oid]), int(nonmanifold[oid]))
+        for oid, name in enumerate(scene.object_names))
     return SceneReport(vertices=len(scene.vertices), triangles=scene.num_triangles,
-                       degenerate_triangles=int(degenerate.sum()), open_edges=total_open,
-                       nonmanifold_edges=total_nm, objects=tuple(objects))
+                       degenerate_triangles=int(degenerate.sum()),
+                       open_edges=int(open_edges.sum()), nonmanifold_edges=int(nonmanifold.sum()),
+                       objects=objects)
