@@ -64,8 +64,11 @@ def _timed(fn, repeats, slow_seconds=float("inf")):
 def _sweep(cfg, points, key, repeats, bar):
     rows = []
     slow = float(cfg.get("slow_seconds", float("inf")))
-    timed = lambda label, fn: (bar.set_postfix_str(label, refresh=True),  # noqa: E731
-                               _timed(fn, repeats, slow))[1]
+
+    def timed(label, fn):
+        bar.set_postfix_str(label, refresh=True)
+        return _timed(fn, repeats, slow)
+
     for value in points:
         bar.set_description(f"{key} {value}")
         if key == "objects":

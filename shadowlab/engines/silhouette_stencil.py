@@ -70,10 +70,10 @@ def edge_table(a, b, la, lb, light):
     # which side of the edge a view ray passes (float32, 3 cm edges 40 units away:
     # 7 mm, and a fan of caps around one vertex counted twice); the difference is exact
     # for such edges and the products are no larger than the result
-    ab = cross3(av, [bv[k] - av[k] for k in range(3)], mul)
+    edge = [bv[k] - av[k] for k in range(3)]
+    ab = cross3(av, edge, mul)
     d = ordered_dot(lv, ab, mul)
-    r = cross3([lv[k] - mul(lw, av[k]) for k in range(3)], [bv[k] - av[k] for k in range(3)],
-               mul)
+    r = cross3([lv[k] - mul(lw, av[k]) for k in range(3)], edge, mul)
     cols = [la[:, 0], la[:, 1], la[:, 2], lb[:, 0], lb[:, 1], lb[:, 2], *ab, d, *av, *r]
     return jnp.stack(cols, axis=1)
 
