@@ -544,6 +544,7 @@ def test_every_experiment_has_both_sizes():
     ("seeds = [0, -1]\n", "seeds must be a non-empty list of integers >= 0, got [0, -1]"),
     ("max_mae = 2.0\n", "max_mae must be a finite number >= 0 and <= 1, got 2.0"),
     ("repeats = 1.5\n", "repeats must be an integer >= 1, got 1.5"),
+    ("slow_seconds = 0\n", "slow_seconds must be a finite number > 0 (seconds), got 0"),
     ("require_claims = 'yes'\n", "require_claims must be true or false, got 'yes'"),
     ("params = 3\n", "params must be a table, got an integer 3"),
     ("scene = 'gate'\nparams = {tree = 3}\n", "params: gate: unknown parameter 'tree'"),
