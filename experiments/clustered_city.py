@@ -32,6 +32,7 @@ import numpy as np
 
 import shadowlab as sl
 from shadowlab.analysis.metrics import discontinuity_mask
+from shadowlab.harness import checkpoints
 from shadowlab.harness.claims import measured
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
@@ -45,6 +46,31 @@ COUNTERS = ("tests", "leaf_visits", "node_tests", "tests_at_discontinuities",
             "tests_elsewhere")
 
 
+def _resolution_point(cfg, scene, view, res) -> dict:
+    """One resolution's counters [V, 5], mismatches and unexplained [V], valid and
+    steep pixels, and clusters per occupied 8 x 8 tile."""
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=res))
+    truth = sl.reference_shadows(scene, gbuf, view.light)
+    steep = discontinuity_mask(gbuf)
+    ty, tx = np.nonzero(gbuf.valid)
+    occupied = len(np.unique((ty // 8) * (-(-res[0] // 8)) + tx // 8))
+    out = {"counters": [], "mismatches": [], "unexplained": [], "clusters_per_tile": None}
+    for j, (_, method, opts) in enumerate(VARIANTS):
+        r = sl.compute_shadows(scene, gbuf, view.light, method=method,
+                               precision=cfg.get("precision", "float32"), **opts)
+        c = r.counters
+        tp = np.asarray(c["tests_per_pixel"])
+        out["counters"].append([int(c["tests"]), int(c["leaf_visits"]), int(c["node_tests"]),
+                                int(tp[steep].sum()), int(tp[gbuf.valid & ~steep].sum())])
+        out["mismatches"].append(int(np.count_nonzero((r.lit != truth) & gbuf.valid)))
+        out["unexplained"].append(int(unexplained_count(scene, gbuf, view.light, r.lit, truth)))
+        if j == 2:
+            out["clusters_per_tile"] = float(c["clusters"] / max(occupied, 1))
+    out["valid"] = int(gbuf.valid.sum())
+    out["steep_pixels"] = int(steep.sum())
+    return out
+
+
 def run(cfg: dict) -> dict:
     """Per resolution R ([R, 2] width, height) and variant V: counters [R, V, 5] (COUNTERS), mismatches and
     unexplained mismatches [R, V]; per resolution: valid pixels, pixels at
@@ -54,29 +80,17 @@ def run(cfg: dict) -> dict:
     scene = sl.load_scene(name, **params)
     view = default_view(name, scene, **params)
     resolutions = [tuple(int(x) for x in r) for r in cfg["resolutions"]]
-    counters = np.zeros((len(resolutions), len(VARIANTS), len(COUNTERS)), np.int64)
-    mism = np.zeros((len(resolutions), len(VARIANTS)), np.int64)
-    unex = np.zeros_like(mism)
-    valid, steep_px, per_tile = [], [], []
-    for i, res in enumerate(resolutions):
-        gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=res))
-        truth = sl.reference_shadows(scene, gbuf, view.light)
-        steep = discontinuity_mask(gbuf)
-        ty, tx = np.nonzero(gbuf.valid)
-        occupied = len(np.unique((ty // 8) * (-(-res[0] // 8)) + tx // 8))
-        for j, (_, method, opts) in enumerate(VARIANTS):
-            r = sl.compute_shadows(scene, gbuf, view.light, method=method,
-                                   precision=cfg.get("precision", "float32"), **opts)
-            c = r.counters
-            tp = np.asarray(c["tests_per_pixel"])
-            counters[i, j] = (c["tests"], c["leaf_visits"], c["node_tests"],
-                              tp[steep].sum(), tp[gbuf.valid & ~steep].sum())
-            mism[i, j] = np.count_nonzero((r.lit != truth) & gbuf.valid)
-            unex[i, j] = unexplained_count(scene, gbuf, view.light, r.lit, truth)
-            if j == 2:
-                per_tile.append(c["clusters"] / max(occupied, 1))
-        valid.append(int(gbuf.valid.sum()))
-        steep_px.append(int(steep.sum()))
+    # one checkpointed point per resolution (a stopped figures run resumes finished ones)
+    points = [checkpoints.point(f"resolution={res[0]}x{res[1]}",
+                                lambda: _resolution_point(cfg, scene, view, res))
+              for res in resolutions]
+    counters = np.asarray([p["counters"] for p in points], np.int64).reshape(
+        len(resolutions), len(VARIANTS), len(COUNTERS))
+    mism = np.asarray([p["mismatches"] for p in points], np.int64)
+    unex = np.asarray([p["unexplained"] for p in points], np.int64)
+    valid = [p["valid"] for p in points]
+    steep_px = [p["steep_pixels"] for p in points]
+    per_tile = [p["clusters_per_tile"] for p in points]
     return {"resolutions": np.asarray(resolutions), "counters": counters,
             "counter_names": np.asarray(COUNTERS),
             "labels": np.asarray([v[0] for v in VARIANTS]),

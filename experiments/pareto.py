@@ -34,7 +34,7 @@ import statistics
 import numpy as np
 
 from shadowlab.analysis.pareto import pareto_front
-from shadowlab.harness import References, evaluate
+from shadowlab.harness import References, checkpoints, evaluate
 from shadowlab.harness.bench import _soft_curve
 from shadowlab.harness.figures import ExperimentConfigError, scene_frames
 from shadowlab.methods import MethodKind, get, light_problem, names
@@ -97,6 +97,54 @@ def _front_rows(scene_name, labels, seconds, error):
     return [(scene_name, labels[i], float(error[i]), float(seconds[i])) for i in idx]
 
 
+def _scene_point(cfg, name, res, hard, soft, rays, opts, repeats, precision) -> dict:
+    """One scene's values: per hard configuration seconds, mismatches, fraction and
+    unexplained [C]; embree_seconds and valid_pixels; per soft configuration
+    soft_seconds, soft_mae and soft_penumbra_mae [K] and Embree's soft curve [R] (NaN
+    where the scene is not in ``soft_scenes`` or a method refuses the light)."""
+    _, scene, view, gbuf, refs = next(scene_frames(cfg, [name], res))
+    refs.hard(repeats + 1)
+    row = {k: [] for k in ("seconds", "mismatches", "fraction", "unexplained")}
+    for _, method, o in hard:
+        ev = evaluate(scene, gbuf, view.light, method, dict(o, precision=precision),
+                      reference=refs, repeats=repeats)
+        e = ev.error
+        u = e.get("unexplained")
+        row["seconds"].append(ev.seconds)
+        row["mismatches"].append(int(e["mismatches"]))
+        row["fraction"].append(float(e["mismatch_fraction"]))
+        row["unexplained"].append(-1 if u is None or get(method).kind is not MethodKind.EXACT
+                                  else int(u))
+    row["embree_seconds"] = statistics.median(refs.hard_seconds[1:] or refs.hard_seconds)
+    row["valid_pixels"] = int(gbuf.valid.sum())
+    if name not in opts.get("soft_scenes", cfg["scenes"]):
+        for k in ("soft_seconds", "soft_mae", "soft_penumbra_mae"):
+            row[k] = [np.nan] * len(soft)
+        row["embree_soft_seconds"] = [np.nan] * len(rays)
+        row["embree_soft_mae"] = [np.nan] * len(rays)
+        return row
+    light = soft_light(scene, view.light, float(opts.get("soft_radius", 0.02)))
+    srefs = References(scene, gbuf, light, soft_rays=int(cfg["truth_rays"]), seed=0)
+    truth = srefs.soft()
+    for k in ("soft_seconds", "soft_mae", "soft_penumbra_mae"):
+        row[k] = []
+    for _, method, o in soft:
+        if light_problem(method, light):
+            for k in ("soft_seconds", "soft_mae", "soft_penumbra_mae"):
+                row[k].append(np.nan)
+            continue
+        ev = evaluate(scene, gbuf, light, method, dict(o, precision=precision,
+                                                       **opts.get("soft_options", {})),
+                      reference=srefs, repeats=repeats)
+        row["soft_seconds"].append(ev.seconds)
+        row["soft_mae"].append(float(ev.error["mae"]))
+        row["soft_penumbra_mae"].append(float(ev.error["penumbra_mae"]))
+    curve = _soft_curve(scene, gbuf, light, truth, srefs.shadow_eps, False, rays)
+    row["embree_soft_seconds"] = [c["seconds"] for c in curve]
+    row["embree_soft_mae"] = [float(c["mae"]) for c in curve]
+    return row
+
+
 def run(cfg: dict) -> dict:
     """Arrays, per scene s [S], hard configuration c [C], soft configuration k [K],
     Embree soft ray count r [R]: seconds, mismatches, fraction (of valid pixels),
@@ -122,55 +170,16 @@ def run(cfg: dict) -> dict:
             "embree_soft_seconds", "embree_soft_mae")
     out = {k: [] for k in keys}
     front, soft_front = [], []
-    for name, scene, view, gbuf, refs in scene_frames(cfg, names_, res):
-        refs.hard(repeats + 1)
-        row = {k: [] for k in ("seconds", "mismatches", "fraction", "unexplained")}
-        for _, method, o in hard:
-            ev = evaluate(scene, gbuf, view.light, method, dict(o, precision=precision),
-                          reference=refs, repeats=repeats)
-            e = ev.error
-            u = e.get("unexplained")
-            row["seconds"].append(ev.seconds)
-            row["mismatches"].append(int(e["mismatches"]))
-            row["fraction"].append(float(e["mismatch_fraction"]))
-            row["unexplained"].append(-1 if u is None or get(method).kind is not MethodKind.EXACT
-                                      else int(u))
-        for k, v in row.items():
-            out[k].append(v)
-        embree = statistics.median(refs.hard_seconds[1:] or refs.hard_seconds)
-        out["embree_seconds"].append(embree)
-        out["valid_pixels"].append(int(gbuf.valid.sum()))
+    for name in names_:
+        # one checkpointed point per scene (a stopped figures run resumes finished scenes)
+        row = checkpoints.point(f"scene={name}", lambda: _scene_point(
+            cfg, name, res, hard, soft, rays, opts, repeats, precision))
+        for k in keys:
+            out[k].append(row[k])
         front += _front_rows(name, [h[0] for h in hard], row["seconds"], row["fraction"])
-
-        if name not in opts.get("soft_scenes", names_):
-            for k in ("soft_seconds", "soft_mae", "soft_penumbra_mae"):
-                out[k].append([np.nan] * len(soft))
-            out["embree_soft_seconds"].append([np.nan] * len(rays))
-            out["embree_soft_mae"].append([np.nan] * len(rays))
-            continue
-        light = soft_light(scene, view.light, float(opts.get("soft_radius", 0.02)))
-        srefs = References(scene, gbuf, light, soft_rays=int(cfg["truth_rays"]), seed=0)
-        truth = srefs.soft()
-        srow = {k: [] for k in ("soft_seconds", "soft_mae", "soft_penumbra_mae")}
-        for _, method, o in soft:
-            if light_problem(method, light):
-                srow["soft_seconds"].append(np.nan)
-                srow["soft_mae"].append(np.nan)
-                srow["soft_penumbra_mae"].append(np.nan)
-                continue
-            ev = evaluate(scene, gbuf, light, method, dict(o, precision=precision,
-                                                           **opts.get("soft_options", {})),
-                          reference=srefs, repeats=repeats)
-            srow["soft_seconds"].append(ev.seconds)
-            srow["soft_mae"].append(float(ev.error["mae"]))
-            srow["soft_penumbra_mae"].append(float(ev.error["penumbra_mae"]))
-        for k, v in srow.items():
-            out[k].append(v)
-        curve = _soft_curve(scene, gbuf, light, truth, srefs.shadow_eps, False, rays)
-        out["embree_soft_seconds"].append([c["seconds"] for c in curve])
-        out["embree_soft_mae"].append([float(c["mae"]) for c in curve])
-        soft_front += _front_rows(name, [s[0] for s in soft], srow["soft_seconds"],
-                                  srow["soft_mae"])
+        if name in opts.get("soft_scenes", names_):
+            soft_front += _front_rows(name, [s[0] for s in soft], row["soft_seconds"],
+                                      row["soft_mae"])
     arrays = {k: np.asarray(v) for k, v in out.items()}
     arrays["scenes"] = np.asarray(names_)
     arrays["labels"] = np.asarray([h[0] for h in hard])

@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 import shadowlab as sl
+from shadowlab.harness import checkpoints
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
 
@@ -61,54 +62,64 @@ def _timed(fn, repeats, slow_seconds=float("inf")):
     return out, statistics.median(times), len(times)
 
 
+def _point(cfg, key, value, timed) -> dict:
+    """One sweep point's row: scalars per column (the reference, each variant, the
+    per-triangle baseline, each shadow map)."""
+    if key == "objects":
+        params = {"triangles_per_sphere": int(cfg["params"]["triangles_per_sphere"]),
+                  "objects": int(value)}
+    else:
+        params = {"triangles_per_sphere": int(value)}
+    scene, gbuf, light = _frame(cfg, **params)
+    truth, t_ref, _ = timed("embree", lambda: sl.reference_shadows(scene, gbuf, light))
+    row = {"triangles": scene.num_triangles, "embree_seconds": t_ref}
+    for name, opts in VARIANTS.items():
+        res, t, runs = timed(name, lambda: sl.compute_shadows(
+            scene, gbuf, light, method="silhouette", **opts))
+        row[f"{name}_seconds"] = t
+        row[f"{name}_runs"] = runs
+        row[f"{name}_mismatches"] = int(((res.lit != truth) & gbuf.valid).sum())
+        row[f"{name}_unexplained"] = unexplained_count(scene, gbuf, light, res.lit, truth)
+        for w in WORK:
+            row[f"{name}_{w}"] = int(res.counters[w])
+        for stage in ("multiplicity", "setup", "stencil", "caps"):
+            # a pass's screen bins (host) count with it
+            row[f"{name}_stage_{stage}"] = float(res.timings.get(stage, 0.0)) + \
+                float(res.timings.get(f"{stage}_bins", 0.0))
+    # O(samples x triangles): only up to a tessellation of per_triangle_max
+    if int(params["triangles_per_sphere"]) <= int(cfg.get("per_triangle_max", 0)):
+        res, t, _ = timed("per-triangle zpass", lambda: sl.compute_shadows(
+            scene, gbuf, light, method="zpass"))
+        row["per_triangle_seconds"] = t
+        row["per_triangle_updates"] = int(res.counters["stencil_updates"])
+    else:
+        row["per_triangle_seconds"] = np.nan
+        row["per_triangle_updates"] = -1
+    for r in cfg.get("shadow_map_resolutions") or []:
+        res, t, _ = timed(f"shadow map {r}", lambda: sl.compute_shadows(
+            scene, gbuf, light, method="shadow_map", resolution=int(r)))
+        row[f"sm{r}_seconds"] = t
+        row[f"sm{r}_mismatches"] = int(((res.lit != truth) & gbuf.valid).sum())
+    return row
+
+
 def _sweep(cfg, points, key, repeats, bar):
-    rows = []
+    """Columns over ``points``; each point is checkpointed (a stopped figures run
+    resumes the finished ones, :mod:`shadowlab.harness.checkpoints`)."""
     slow = float(cfg.get("slow_seconds", float("inf")))
 
     def timed(label, fn):
         bar.set_postfix_str(label, refresh=True)
         return _timed(fn, repeats, slow)
 
+    rows = []
     for value in points:
         bar.set_description(f"{key} {value}")
-        if key == "objects":
-            params = {"triangles_per_sphere": int(cfg["params"]["triangles_per_sphere"]),
-                      "objects": int(value)}
-        else:
-            params = {"triangles_per_sphere": int(value)}
-        scene, gbuf, light = _frame(cfg, **params)
-        truth, t_ref, _ = timed("embree", lambda: sl.reference_shadows(scene, gbuf, light))
-        row = {"triangles": scene.num_triangles, "embree_seconds": t_ref}
-        for name, opts in VARIANTS.items():
-            res, t, runs = timed(name, lambda: sl.compute_shadows(
-                scene, gbuf, light, method="silhouette", **opts))
-            row[f"{name}_seconds"] = t
-            row[f"{name}_runs"] = runs
-            row[f"{name}_mismatches"] = int(((res.lit != truth) & gbuf.valid).sum())
-            row[f"{name}_unexplained"] = unexplained_count(scene, gbuf, light, res.lit, truth)
-            for w in WORK:
-                row[f"{name}_{w}"] = int(res.counters[w])
-            for stage in ("multiplicity", "setup", "stencil", "caps"):
-                # a pass's screen bins (host) count with it
-                row[f"{name}_stage_{stage}"] = float(res.timings.get(stage, 0.0)) + \
-                    float(res.timings.get(f"{stage}_bins", 0.0))
-        # O(samples x triangles): only up to a tessellation of per_triangle_max
-        if int(params["triangles_per_sphere"]) <= int(cfg.get("per_triangle_max", 0)):
-            res, t, _ = timed("per-triangle zpass", lambda: sl.compute_shadows(
-                scene, gbuf, light, method="zpass"))
-            row["per_triangle_seconds"] = t
-            row["per_triangle_updates"] = int(res.counters["stencil_updates"])
-        else:
-            row["per_triangle_seconds"] = np.nan
-            row["per_triangle_updates"] = -1
-        for r in cfg.get("shadow_map_resolutions") or []:
-            res, t, _ = timed(f"shadow map {r}", lambda: sl.compute_shadows(
-                scene, gbuf, light, method="shadow_map", resolution=int(r)))
-            row[f"sm{r}_seconds"] = t
-            row[f"sm{r}_mismatches"] = int(((res.lit != truth) & gbuf.valid).sum())
-        rows.append(row)
+        rows.append(checkpoints.point(f"{key}={value}",
+                                      lambda: _point(cfg, key, value, timed)))
         bar.update()
-    return {k: np.asarray([r[k] for r in rows]) for k in rows[0]}
+    return {k: np.asarray([r[k] for r in rows], dtype=float if k.endswith("_seconds")
+                          else None) for k in rows[0]}
 
 
 def run(cfg: dict) -> dict:

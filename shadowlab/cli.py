@@ -77,6 +77,10 @@ def _parser() -> argparse.ArgumentParser:
     figures.add_argument("--scheduler", metavar="ADDRESS",
                          help="run the experiments on the Dask cluster at ADDRESS")
     figures.add_argument("--quiet", action="store_true")
+    figures.add_argument("--fresh", action="store_true",
+                         help="discard the finished sweep points that an interrupted run "
+                              "kept in figures/.checkpoints (by default a re-run of the "
+                              "same code and config resumes them)")
     figures.add_argument("--claims-only", action="store_true",
                          help="run nothing: recompute the claims of the figures in "
                               "--root/figures from their stored arrays and configs (after a "
@@ -219,7 +223,7 @@ def _cmd_figures(args) -> int:
                           "existing one), not both")
     failures = regenerate(Path(args.root), size=args.size, only=args.only,
                           progress=not args.quiet, workers=args.workers,
-                          scheduler=args.scheduler)
+                          scheduler=args.scheduler, fresh=args.fresh)
     return 1 if failures else 0
 
 

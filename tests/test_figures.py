@@ -174,3 +174,113 @@ def test_claims_only_recomputes_claims_from_the_stored_arrays(tmp_path, capsys):
     (tmp_path / "figures" / "toy.npz").unlink()
     assert main(["figures", "--claims-only", "--root", str(tmp_path), "--only", "toy"]) == 2
     assert "toy.json: no committed run" in capsys.readouterr().err
+
+
+_SWEEP_TOY = '''
+from pathlib import Path
+
+import numpy as np
+
+from shadowlab.harness import checkpoints
+
+
+def _measure(i, options):
+    log = Path(options["log"])
+    log.write_text((log.read_text() if log.exists() else "") + f"{i}\\n")
+    if i == 2 and Path(options["stop_flag"]).exists():
+        raise RuntimeError("stopped at point 2")
+    return {"i": i, "x": np.float64(i) / 2, "nan": float("nan"), "pair": (i, i + 1)}
+
+
+def run(cfg):
+    opts = cfg["options"]
+    rows = [checkpoints.point(f"i={i}", lambda: _measure(i, opts)) for i in range(4)]
+    return {"i": np.asarray([r["i"] for r in rows]), "x": np.asarray([r["x"] for r in rows]),
+            "nan": np.asarray([r["nan"] for r in rows]),
+            "pair": np.asarray([r["pair"] for r in rows])}
+
+
+def plot(arrays):
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    ax.plot(arrays["x"])
+    return fig
+'''
+
+
+def _sweep_toy(root, scale=1):
+    (root / "experiments").mkdir(exist_ok=True)
+    (root / "configs" / "experiments").mkdir(parents=True, exist_ok=True)
+    (root / "experiments" / "toy.py").write_text(_SWEEP_TOY)
+    (root / "configs" / "experiments" / "toy.ci.toml").write_text(
+        f"[options]\nlog = '{root / 'calls.log'}'\nstop_flag = '{root / 'stop'}'\n"
+        f"scale = {scale}\n")
+    return root / "figures"
+
+
+def _calls(root):
+    log = root / "calls.log"
+    calls = [int(x) for x in log.read_text().split()] if log.exists() else []
+    log.unlink(missing_ok=True)
+    return calls
+
+
+def test_a_stopped_figures_run_resumes_its_finished_points(tmp_path):
+    import json
+
+    from shadowlab.harness.checkpoints import FOLDER
+
+    out = _sweep_toy(tmp_path)
+    (tmp_path / "stop").touch()
+    with pytest.raises(RuntimeError, match="stopped at point 2"):
+        run_experiment(tmp_path, "toy", "ci", out=out)
+    assert _calls(tmp_path) == [0, 1, 2]
+    assert not (out / "toy.npz").exists()                 # nothing half-written
+    assert len(list((out / FOLDER).rglob("*.json"))) == 2  # points 0 and 1 kept
+
+    (tmp_path / "stop").unlink()
+    resumed = run_experiment(tmp_path, "toy", "ci", out=out)
+    assert _calls(tmp_path) == [2, 3]                      # only the unfinished points
+    meta = json.loads((out / "toy.json").read_text())
+    assert [p["label"] for p in meta["checkpoint"]["resumed"]] == ["i=0", "i=1"]
+    assert not (out / FOLDER).exists()                     # removed once written
+
+    fresh = run_experiment(tmp_path, "toy", "ci", out=tmp_path / "again")
+    assert _calls(tmp_path) == [0, 1, 2, 3]
+    assert "checkpoint" not in json.loads((tmp_path / "again" / "toy.json").read_text())
+    for k in fresh:                                        # NaN, tuples, NumPy scalars alike
+        np.testing.assert_array_equal(resumed[k], fresh[k])
+        assert resumed[k].dtype == fresh[k].dtype
+    assert fresh["pair"].tolist() == [[0, 1], [1, 2], [2, 3], [3, 4]]
+    assert fresh["i"].dtype.kind == "i" and np.isnan(fresh["nan"]).all()
+
+
+@pytest.mark.parametrize("change", ["config", "fresh"])
+def test_checkpoints_of_another_config_or_a_fresh_run_are_not_resumed(tmp_path, change):
+    out = _sweep_toy(tmp_path)
+    (tmp_path / "stop").touch()
+    with pytest.raises(RuntimeError):
+        run_experiment(tmp_path, "toy", "ci", out=out)
+    _calls(tmp_path)
+    (tmp_path / "stop").unlink()
+    if change == "config":
+        _sweep_toy(tmp_path, scale=2)
+        run_experiment(tmp_path, "toy", "ci", out=out)
+    else:                                                  # through the command line
+        from shadowlab.cli import main
+
+        assert main(["figures", "--root", str(tmp_path), "--only", "toy", "--fresh",
+                     "--quiet"]) == 0
+    assert _calls(tmp_path) == [0, 1, 2, 3]
+    assert (out / "toy.npz").exists()
+
+
+def test_a_point_outside_a_figures_run_is_computed_and_given_as_json_gives_it():
+    from shadowlab.harness import checkpoints
+
+    got = checkpoints.point("p", lambda: {"a": np.int64(3), "b": (1.5, np.nan),
+                                          "c": np.arange(2)})
+    assert got["a"] == 3 and type(got["a"]) is int
+    assert got["b"][0] == 1.5 and np.isnan(got["b"][1]) and got["c"] == [0, 1]
+    with pytest.raises(TypeError, match="JSON-able"):
+        checkpoints.point("p", lambda: {"a": object()})

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import io
+from . import checkpoints
 from ..config.errors import ConfigError
 from ..config.experiments import load_experiment_file
 
@@ -163,21 +164,37 @@ def run_as_script(file: str, size: str = "ci") -> dict:
     return arrays
 
 
-def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = None) -> dict:
-    """Run one experiment, write its figure, arrays and metadata; return the arrays."""
-    module = load_module(discover(root)[name])
+def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = None,
+                   fresh: bool = False) -> dict:
+    """Run one experiment, write its figure, arrays and metadata; return the arrays.
+
+    Sweep points the experiment computes through :func:`checkpoints.point` are kept
+    under ``out/.checkpoints`` until the figure is written, and a re-run of the same
+    code and config resumes them (``fresh``: discard them first); the JSON's
+    ``"checkpoint"`` lists the resumed points."""
+    path = discover(root)[name]
+    module = load_module(path)
     cfg = load_experiment_config(root, name, size)
-    t0 = time.perf_counter()
-    arrays = module.run(cfg)
-    seconds = time.perf_counter() - t0
     out = out or root / "figures"
+    checkpoint = checkpoints.Checkpoint(out, name, size,
+                                        checkpoints.run_key(name, size, cfg, path), fresh)
+    t0 = time.perf_counter()
+    with checkpoints.active(checkpoint):
+        arrays = module.run(cfg)
+    seconds = time.perf_counter() - t0
     fig = module.plot(arrays)
     meta = {"experiment": name, "size": size, "config": cfg, "run_seconds": seconds,
             **_measured(module, arrays, cfg), "provenance": io.provenance()}
+    if checkpoint.resumed:
+        meta["checkpoint"] = {"resumed": checkpoint.resumed,
+                              "note": "run_seconds counts this run only; the resumed "
+                                      "points were computed by an earlier run of the "
+                                      "same code and config"}
     found = meta["claims"]
     io.write_npz(out / f"{name}.npz", arrays)
     io.save_figure(fig, out / f"{name}.png")
     io.write_json(out / f"{name}.json", meta)
+    checkpoint.discard()
     for c in found:
         print(f"  [{'holds' if c['holds'] else 'FAILS'}] {c['claim']}: {c['measured']}",
               file=sys.stderr)
@@ -236,7 +253,7 @@ def remeasure_claims(root: Path, only: list[str] | None = None) -> list[str]:
 
 def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
                progress: bool = True, out: Path | None = None, *, workers: int | None = None,
-               scheduler: str | None = None, client=None) -> list[str]:
+               scheduler: str | None = None, client=None, fresh: bool = False) -> list[str]:
     """Run every experiment (or ``only`` those) writing to ``out`` (default
     ``root/figures``); return the names that failed.
 
@@ -245,6 +262,9 @@ def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
     (:func:`shadowlab.harness.sweep.dask_client`): a local cluster of ``workers``
     processes, the cluster at ``scheduler``, or the given client. Every worker must see
     ``root`` at the same path (outputs are written there, atomically).
+
+    Finished sweep points of an interrupted run are resumed unless ``fresh``
+    (:func:`run_experiment`).
 
     Raises:
         ExperimentError: an unknown experiment name, or an invalid config (all configs
@@ -260,10 +280,10 @@ def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
         load_experiment_config(root, name, size)
     if workers is not None or scheduler is not None or client is not None:
         return _regenerate_on_dask(root, size, names, progress, out, workers, scheduler,
-                                   client)
+                                   client, fresh)
     failures = []
     for name in names:
-        name, status, seconds = run_one(root, name, size, out)
+        name, status, seconds = run_one(root, name, size, out, fresh=fresh)
         if status != "ok":
             failures.append(name)
         if progress:
@@ -272,7 +292,7 @@ def regenerate(root: Path, size: str = "ci", only: list[str] | None = None,
 
 
 def run_one(root: Path, name: str, size: str, out: Path | None = None,
-            jax_cache: bool = False) -> tuple[str, str, float]:
+            jax_cache: bool = False, fresh: bool = False) -> tuple[str, str, float]:
     """Run one experiment, printing any traceback: (name, "ok" or "FAILED", seconds).
     ``jax_cache``: turn on the persistent JAX cache first (what a Dask worker does)."""
     if jax_cache:
@@ -281,7 +301,7 @@ def run_one(root: Path, name: str, size: str, out: Path | None = None,
         enable_compilation_cache()
     t0 = time.perf_counter()
     try:
-        run_experiment(Path(root), name, size, None if out is None else Path(out))
+        run_experiment(Path(root), name, size, None if out is None else Path(out), fresh)
         status = "ok"
     except Exception:
         traceback.print_exc()
@@ -289,7 +309,7 @@ def run_one(root: Path, name: str, size: str, out: Path | None = None,
     return name, status, time.perf_counter() - t0
 
 
-def _regenerate_on_dask(root, size, names, progress, out, workers, scheduler, client):
+def _regenerate_on_dask(root, size, names, progress, out, workers, scheduler, client, fresh):
     from distributed import as_completed
 
     from .sweep import dask_client
@@ -302,6 +322,7 @@ def _regenerate_on_dask(root, size, names, progress, out, workers, scheduler, cl
     try:
         futures = {client.submit(run_one, str(Path(root).resolve()), name, size,
                                  None if out is None else str(Path(out).resolve()), True,
+                                 fresh,
                                  key=f"shadowlab-figure-{size}-{name}", pure=False): name
                    for name in names}
         for future in as_completed(list(futures)):
