@@ -53,7 +53,13 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--only", action="append", default=[], metavar="NAME",
                        help="only this built-in case (repeatable; see shadowlab/configs/bench.toml)")
     bench.add_argument("--repeats", type=int, default=5, help="warm runs per method (median)")
-    bench.add_argument("--out", default="bench.json", help="JSON results (default: bench.json)")
+    bench.add_argument("--out", default=None,
+                       help="JSON results (default: bench.json; with --cold, cold_start.json)")
+    bench.add_argument("--cold", action="store_true",
+                       help="cold start instead: each method of the config (default: the "
+                            "built-in default run) in a fresh process with an empty JAX "
+                            "compilation cache; import, setup, first call, compile and warm "
+                            "times against the 20 s aim")
     bench.add_argument("--quiet", action="store_true")
     bench.add_argument("--note", default=None,
                        help="a remark on the machine recorded in the JSON (its load is "
@@ -175,14 +181,37 @@ def _cmd_pareto(args) -> int:
     return 0
 
 
+def _cmd_cold(args) -> int:
+    from .config import ConfigError
+    from .core import io
+    from .harness.cold_start import cold_start, format_cold
+
+    if args.pareto or args.only:
+        raise ConfigError("bench --cold measures the methods of one run config (CONFIG, "
+                          "or the built-in default, with --set); it takes no --pareto or "
+                          "--only (choose methods with --set methods.names=[...])")
+    if args.repeats < 1:
+        raise ConfigError(f"bench --repeats must be >= 1, got {args.repeats}")
+    results = cold_start(args.config, args.overrides, repeats=args.repeats,
+                         progress=not args.quiet)
+    out = args.out or "cold_start.json"
+    io.write_json(out, results)
+    print(format_cold(results))
+    print(f"wrote {out}")
+    return 1 if any("failed" in r for r in results["methods"].values()) else 0
+
+
 def _cmd_bench(args) -> int:
     from .harness.bench import default_cases, format_bench, run_bench
     from .config import ConfigError, load_config
 
     if args.render_only and not args.pareto:
         raise ConfigError("bench --render-only needs --pareto")
+    if args.cold:
+        return _cmd_cold(args)
     if args.pareto:
         return _cmd_pareto(args)
+    args.out = args.out or "bench.json"
     if args.config:
         configs = [load_config(args.config, args.overrides)]
         names = [args.config]

@@ -170,13 +170,42 @@ def _case(case: dict, default_repeats) -> list[str]:
     return lines
 
 
+def _cold(results: dict) -> list[str]:
+    """The table of a ``shadowlab bench --cold`` JSON."""
+    w, h = results["resolution"] or (0, 0)
+    lines = [f"Cold start (`shadowlab bench --cold`): config `{results['config']}`"
+             + "".join(f" `--set {o}`" for o in results.get("overrides", []))
+             + f", scene `{results['scene']}`, {results['triangles'] or 0:,} triangles, "
+             f"{w}x{h}. Each method runs in a fresh process whose JAX compilation cache is "
+             f"empty; \"first call\" is its first `compute_shadows` (trace, compile, run), "
+             f"of which \"compile\" is what its stages report; \"warm\" is the median of "
+             f"{results['repeats']} further calls. Aim: first call <= "
+             f"{results['target_seconds']:.0f} s.", "",
+             "| method | import (s) | setup (s) | first call (s) | compile (s) | warm (ms) "
+             "| process (s) | within aim |", "|---|---|---|---|---|---|---|---|"]
+    for name, r in results["methods"].items():
+        if "skipped" in r or "failed" in r:
+            lines.append(f"| `{name}` | {'skipped' if 'skipped' in r else 'FAILED'}: "
+                         f"{r.get('skipped') or r.get('failed')} |||||||")
+            continue
+        lines.append(f"| `{name}` | {r['import_seconds']:.2f} | {r['setup_seconds']:.2f} | "
+                     f"{r['first_call_seconds']:.2f} | {r['compile_seconds']:.2f} | "
+                     f"{_ms(r['warm_seconds'])} | {r['process_seconds']:.2f} | "
+                     f"{'yes' if r['within_target'] else 'no'} |")
+    return lines + [""]
+
+
 def render(named_results: list[tuple[str, dict]]) -> str:
-    """The generated part of the document for ``[(label, bench JSON dict), ...]``."""
+    """The generated part of the document for ``[(label, bench JSON dict), ...]``
+    (``shadowlab bench`` results, or ``bench --cold`` results, told apart by their
+    ``kind``)."""
     lines = [_TITLE, "", _INTRO, ""]
     for label, results in named_results:
         lines += [f"## `{label}`", "", _provenance(results), ""]
         for line in _machine(results):
             lines += [line, ""]
+        if results.get("kind") == "cold_start":
+            lines += _cold(results)
         for case in results.get("cases", []):
             lines += _case(case, results.get("repeats"))
     return "\n".join(lines).rstrip() + "\n"
@@ -195,7 +224,8 @@ def write_benchmarks_md(bench_json_paths, out_path) -> Path:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m shadowlab.harness.bench_report",
                                  description="docs/benchmarks.md from shadowlab bench JSON")
-    ap.add_argument("bench_json", nargs="+", help="files written by `shadowlab bench --out`")
+    ap.add_argument("bench_json", nargs="+",
+                    help="files written by `shadowlab bench --out` (or `bench --cold`)")
     ap.add_argument("--out", default="docs/benchmarks.md", help="markdown file to write")
     args = ap.parse_args(argv)
     print(write_benchmarks_md(args.bench_json, args.out))

@@ -1,0 +1,55 @@
+"""``shadowlab bench --cold``: each method's first call in a fresh process with an empty
+compilation cache (shadowlab.harness.cold_start)."""
+
+import json
+
+import pytest
+
+from shadowlab.cli import main
+from shadowlab.harness import bench_report, cold_start
+
+SMALL = ["camera.resolution=[16,16]", 'methods.names=["brute_force","soft_tiled"]']
+
+
+def test_cold_start_measures_a_fresh_process_with_an_empty_cache(tmp_path, capsys):
+    out = tmp_path / "cold.json"
+    args = ["bench", "--cold", "--repeats", "2", "--out", str(out), "--quiet"]
+    for o in SMALL:
+        args += ["--set", o]
+    assert main(args) == 0
+    data = json.loads(out.read_text())
+    row = data["methods"]["brute_force"]
+    # an empty cache: the first call compiles, and compiling is part of it
+    assert 0 < row["compile_seconds"] <= row["first_call_seconds"]
+    assert row["warm_seconds"] < row["first_call_seconds"]
+    assert row["process_seconds"] > (row["import_seconds"] + row["setup_seconds"]
+                                     + row["first_call_seconds"])
+    assert row["within_target"] is (row["first_call_seconds"] <= cold_start.TARGET_SECONDS)
+    assert "needs a sphere or sun light" in data["methods"]["soft_tiled"]["skipped"]
+    assert data["resolution"] == [16, 16] and data["machine"]["cpus"] >= 1
+    printed = capsys.readouterr().out
+    assert "brute_force" in printed and f"wrote {out}" in printed
+
+    md = bench_report.render([("cold.json", data)])
+    line = next(x for x in md.splitlines() if x.startswith("| `brute_force` |"))
+    assert f"{row['first_call_seconds']:.2f}" in line and line.count("|") == 9
+
+
+def test_a_failing_child_is_recorded_and_the_command_fails(tmp_path, monkeypatch):
+    monkeypatch.setattr(cold_start, "_CHILD", "raise SystemExit('no compiler here')")
+    out = tmp_path / "cold.json"
+    args = ["bench", "--cold", "--repeats", "1", "--out", str(out), "--quiet",
+            "--set", 'methods.names=["brute_force"]']
+    assert main(args) == 1
+    failed = json.loads(out.read_text())["methods"]["brute_force"]["failed"]
+    assert "exit status 1" in failed and "no compiler here" in failed
+
+
+def test_cold_refuses_pareto_and_only_and_a_bad_config(tmp_path, capsys):
+    out = tmp_path / "cold.json"
+    assert main(["bench", "--cold", "--only", "gate-1024", "--out", str(out)]) == 2
+    assert "takes no --pareto or --only" in capsys.readouterr().err
+    assert main(["bench", "--cold", "--set", "camera.resolutoin=[8,8]", "--out",
+                 str(out)]) == 2
+    assert "resolutoin" in capsys.readouterr().err
+    assert not out.exists()
