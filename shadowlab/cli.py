@@ -192,8 +192,11 @@ def _cmd_cold(args) -> int:
                           "--only (choose methods with --set methods.names=[...])")
     if args.repeats < 1:
         raise ConfigError(f"bench --repeats must be >= 1, got {args.repeats}")
+    if args.size != "full":
+        raise ConfigError("bench --cold measures one run config; --size (of the built-in "
+                          "cases) does not apply")
     results = cold_start(args.config, args.overrides, repeats=args.repeats,
-                         progress=not args.quiet)
+                         progress=not args.quiet, note=args.note)
     out = args.out or "cold_start.json"
     io.write_json(out, results)
     print(format_cold(results))
@@ -239,6 +242,9 @@ def _cmd_figures(args) -> int:
 
     from .config import ConfigError
 
+    if args.claims_only and args.fresh:
+        raise ConfigError("figures --claims-only runs nothing, so --fresh (discard "
+                          "checkpointed points) does not apply; give one of them")
     if args.claims_only:
         for name in remeasure_claims(Path(args.root), only=args.only or None):
             if not args.quiet:
@@ -281,7 +287,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("shadowlab: interrupted; no output file was left half-written"
               + (" (finished sweep tasks are kept and a re-run skips them)"
-                 if args.command == "sweep" else ""), file=sys.stderr)
+                 if args.command == "sweep" else
+                 " (finished sweep points are kept in figures/.checkpoints and a re-run "
+                 "resumes them)" if args.command == "figures" else ""), file=sys.stderr)
         return 130
 
 

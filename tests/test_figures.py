@@ -284,3 +284,33 @@ def test_a_point_outside_a_figures_run_is_computed_and_given_as_json_gives_it():
     assert got["b"][0] == 1.5 and np.isnan(got["b"][1]) and got["c"] == [0, 1]
     with pytest.raises(TypeError, match="JSON-able"):
         checkpoints.point("p", lambda: {"a": object()})
+
+
+def test_a_repeated_label_is_refused_and_an_unreadable_point_is_recomputed(tmp_path):
+    from shadowlab.harness import checkpoints
+
+    cp = checkpoints.Checkpoint(tmp_path, "toy", "ci", "k")
+    with checkpoints.active(cp):
+        assert checkpoints.point("a", lambda: 1) == 1
+        with pytest.raises(ValueError, match="used twice"):
+            checkpoints.point("a", lambda: 2)
+    (stored,) = cp.directory.glob("*.json")
+    stored.write_text('{"label": "a", "val')          # e.g. a disk that filled up
+    again = checkpoints.Checkpoint(tmp_path, "toy", "ci", "k")
+    assert again.stored == 1
+    with checkpoints.active(again):
+        assert checkpoints.point("a", lambda: 3) == 3
+    assert again.resumed == [] and again.written == 1
+
+
+def test_the_checkpoint_key_follows_the_config_size_and_experiment_source(tmp_path):
+    from shadowlab.harness import checkpoints
+
+    module = ROOT / "experiments" / "silhouette_work.py"
+    key = checkpoints.run_key("silhouette_work", "ci", {"repeats": 1}, module)
+    assert checkpoints.run_key("silhouette_work", "ci", {"repeats": 1}, module) == key
+    assert checkpoints.run_key("silhouette_work", "ci", {"repeats": 2}, module) != key
+    assert checkpoints.run_key("silhouette_work", "full", {"repeats": 1}, module) != key
+    toy = tmp_path / "toy.py"
+    toy.write_text(module.read_text() + "\n# edited\n")
+    assert checkpoints.run_key("silhouette_work", "ci", {"repeats": 1}, toy) != key

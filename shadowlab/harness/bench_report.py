@@ -185,8 +185,11 @@ def _cold(results: dict) -> list[str]:
              "| process (s) | within aim |", "|---|---|---|---|---|---|---|---|"]
     for name, r in results["methods"].items():
         if "skipped" in r or "failed" in r:
+            # one line, no cell separators: the last line of a failure (its JSON has more)
+            text = (r.get("skipped") or r.get("failed")).strip().splitlines()[-1:] or [""]
+            text = " ".join(text[0].split()).replace("|", "\\|")
             lines.append(f"| `{name}` | {'skipped' if 'skipped' in r else 'FAILED'}: "
-                         f"{r.get('skipped') or r.get('failed')} |||||||")
+                         f"{text} |||||||")
             continue
         lines.append(f"| `{name}` | {r['import_seconds']:.2f} | {r['setup_seconds']:.2f} | "
                      f"{r['first_call_seconds']:.2f} | {r['compile_seconds']:.2f} | "

@@ -11,15 +11,20 @@ Outside a figures run (a notebook, ``python experiments/<name>.py``, a test call
 each finished point is written atomically to
 ``<out>/.checkpoints/<experiment>-<size>-<key>/<point-hash>.json``. A re-run with the
 same key reads the finished points instead of computing them, prints how many it
-resumed, and lists them (label, when written, load average then) under
+resumed, and lists them (label, when written, host and load average then) under
 ``"checkpoint"`` in the figure's JSON, so resumed timings stay attributable. The
 folder is removed once the figure is written.
 
-The key is a hash of everything that could change a point: the experiment, the size,
-its config, the shadowlab version, the git commit with a hash of the uncommitted
-changes, and the experiment module's source. Folders of the same experiment and size
-under another key are stale and are removed when a run starts. ``figures --fresh``
-discards even a matching folder.
+The key is a hash of what decides a point's values: the experiment, the size, its
+config, the experiment module's source, the shadowlab version and a hash of the installed
+package's source files (:func:`code_hash`: every ``.py`` and ``.toml`` under
+``shadowlab/``, read directly, so uncommitted edits count and rewritten figures do not),
+and the toolchain (Python, NumPy, JAX, jaxlib, the backend, x64). Not in the key: the
+machine. Each point records the host and the load average it was measured at, and the
+JSON lists them for resumed points. Folders of the same experiment and size under
+another key are removed (with a message) when a run starts; ``figures --fresh``
+discards a matching one too. Two runs of the same experiment and size at once share
+one folder, and a resumed point is whichever finished first.
 
 A point's values must be JSON-able: numbers (NaN and infinities are kept), strings,
 booleans, lists and dicts; NumPy scalars and arrays become numbers and (nested) lists,
@@ -30,11 +35,12 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import functools
 import hashlib
 import json
 import os
 import shutil
-import subprocess
+import socket
 import sys
 import time
 from pathlib import Path
@@ -73,17 +79,28 @@ def _as_json(values):
     return json.loads(json.dumps(_plain(values)))
 
 
-def _code_state() -> dict:
-    """The git commit of the installed package and a hash of its uncommitted changes
-    (both None outside a git checkout)."""
-    here = Path(__file__).resolve().parent
-    state = {"commit": None, "changes": None}
-    with contextlib.suppress(Exception):
-        run = lambda *a: subprocess.run(["git", *a], capture_output=True, cwd=here,
-                                        timeout=10, check=True).stdout
-        state["commit"] = run("rev-parse", "HEAD").decode().strip() or None
-        state["changes"] = hashlib.sha256(run("diff", "HEAD")).hexdigest()[:16]
-    return state
+@functools.lru_cache(maxsize=1)
+def code_hash() -> str:
+    """A hash of the installed package's source: every ``*.py`` and ``*.toml`` file under
+    ``shadowlab/`` (paths and contents). It reads the files, not git, so it covers
+    uncommitted and untracked changes and installs outside a checkout, and it does not
+    change when a run rewrites its outputs (``figures/``). Computed once per process."""
+    package = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for path in sorted(p for ext in ("*.py", "*.toml") for p in package.rglob(ext)):
+        digest.update(path.relative_to(package).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes() + b"\0")
+    return digest.hexdigest()[:16]
+
+
+def _toolchain() -> dict:
+    """What else decides a point's values: Python, NumPy, JAX and jaxlib, the backend."""
+    import jax
+    import jaxlib
+
+    return {"python": sys.version.split()[0], "numpy": np.__version__,
+            "jax": jax.__version__, "jaxlib": jaxlib.__version__,
+            "backend": jax.default_backend(), "x64": bool(jax.config.jax_enable_x64)}
 
 
 def run_key(name: str, size: str, cfg: dict, module_file: str | os.PathLike | None) -> str:
@@ -92,9 +109,16 @@ def run_key(name: str, size: str, cfg: dict, module_file: str | os.PathLike | No
 
     source = Path(module_file).read_bytes() if module_file else b""
     ident = {"experiment": name, "size": size, "config": _plain(cfg),
-             "version": __version__, **_code_state(),
+             "version": __version__, "code": code_hash(), **_toolchain(),
              "module": hashlib.sha256(source).hexdigest()}
     return hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _load_average():
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:                              # a platform without one
+        return None
 
 
 class Checkpoint:
@@ -106,27 +130,51 @@ class Checkpoint:
         self.directory = self.root / f"{name}-{size}-{key}"
         self.resumed: list[dict] = []
         self.written = 0
-        prefix = f"{name}-{size}-"
+        self._seen: set[str] = set()
         if self.root.is_dir():
-            for stale in self.root.iterdir():
-                if stale.name.startswith(prefix) and (fresh or stale != self.directory):
+            for stale in sorted(self.root.iterdir()):
+                if stale.name.rsplit("-", 1)[0] == f"{name}-{size}" and \
+                        (fresh or stale != self.directory):
+                    kept = len(list(stale.glob("*.json")))
+                    why = "--fresh" if stale == self.directory else \
+                        "another code, config or toolchain"
+                    print(f"discarding {kept} checkpointed point(s) of {name} ({size}) in "
+                          f"{stale} ({why})", file=sys.stderr)
                     shutil.rmtree(stale, ignore_errors=True)
         self.stored = len(list(self.directory.glob("*.json"))) if self.directory.is_dir() else 0
 
     def _path(self, label: str) -> Path:
         return self.directory / f"{hashlib.sha256(label.encode()).hexdigest()[:20]}.json"
 
-    def point(self, label: str, compute: Callable[[], Any]) -> Any:
-        """The stored values of point ``label``, or ``compute()`` stored under it."""
-        path = self._path(label)
-        if path.exists():
+    def _stored(self, path: Path, label: str):
+        """The record stored for ``label``, or None (absent, unreadable or another label)."""
+        try:
             record = json.loads(path.read_text())
-            if record.get("label") == label:
-                self.resumed.append({k: record[k] for k in ("label", "written", "load_average")})
-                return record["values"]
+        except (OSError, ValueError):
+            return None
+        ok = isinstance(record, dict) and record.get("label") == label and "values" in record
+        return record if ok else None
+
+    def point(self, label: str, compute: Callable[[], Any]) -> Any:
+        """The stored values of point ``label``, or ``compute()`` stored under it.
+
+        Raises:
+            ValueError: ``label`` was already used in this run (labels name points
+                uniquely; a repeat would silently reuse the first point's values).
+        """
+        if label in self._seen:
+            raise ValueError(f"checkpoint label {label!r} used twice in one run; each sweep "
+                             f"point needs its own label (a repeated sweep value?)")
+        self._seen.add(label)
+        path = self._path(label)
+        record = self._stored(path, label)
+        if record is not None:
+            self.resumed.append({k: record.get(k) for k in
+                                 ("label", "written", "host", "load_average")})
+            return _as_json(record["values"])
         values = compute()
         record = {"label": label, "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                  "load_average": [round(x, 2) for x in os.getloadavg()],
+                  "host": socket.gethostname(), "load_average": _load_average(),
                   "values": _plain(values)}
         with io.atomic_path(path) as tmp:
             tmp.write_text(json.dumps(record))

@@ -2,17 +2,22 @@
 
 What a user waits for the first time a method runs: a new Python process, whose JAX
 persistent compilation cache (``SHADOWLAB_JAX_CACHE``) is a new, empty folder, imports
-shadowlab, builds the config's scene and G-buffer, and calls the method. Per method of
-a run config (default: the built-in default run, ``gate`` at 256x256) the child
-process reports, in seconds:
+shadowlab, builds the config's scene and G-buffer, and calls the method. Only the JAX
+cache is empty: the operating system's file cache is warm (the parent has just imported
+the same libraries), so ``import_seconds`` is a fresh process's import, not a first
+import after boot. Per method of a run config (default: the built-in default run,
+``gate`` at 256x256) the child process reports, in seconds:
 
 - ``import_seconds``: ``import shadowlab`` (JAX, Embree, the method registry);
 - ``setup_seconds``: the scene, its first view and the G-buffer;
 - ``first_call_seconds``: the first ``compute_shadows`` call, wall clock: tracing,
   compiling and running (the cold start proper);
-- ``compile_seconds``: of that, what the method's stages report as ``<stage>_compile``
-  (the XLA compilation they time; tracing and host work are the rest);
-- ``warm_seconds``: the median of ``repeats`` further calls, for comparison;
+- ``compile_seconds``: of that, what the method's jitted stages report as
+  ``<stage>_compile`` (trace, lower and compile of each; host work is the rest);
+- ``warm_seconds``: the median of ``repeats`` further calls with the same options (the
+  config's, without the static options ``shadowlab bench`` adds for its static ratio);
+- ``cache_entries_at_start``: files in the compilation cache when the child started
+  (0: a cold start);
 
 and the parent adds ``process_seconds``, the child's wall clock from spawn to exit.
 A first call is compared with :data:`TARGET_SECONDS`. The machine's load before and
@@ -28,6 +33,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 #: the cold-start aim for a method's first call on the default run (seconds)
 TARGET_SECONDS = 20.0
@@ -36,15 +42,17 @@ _CHILD = ("import sys, time; t0 = time.perf_counter(); "
           "from shadowlab.harness.cold_start import child; child(t0, *sys.argv[1:])")
 
 
-def child(t0: float, config_path: str, overrides_json: str, method: str,
+def child(t0: float, out_path: str, config_path: str, overrides_json: str, method: str,
           repeats: str) -> None:
-    """The child process: measure one method's cold start and print one JSON line."""
+    """The child process: measure one method's cold start and write it as JSON to
+    ``out_path`` (a file, so whatever a method prints cannot mix with the result)."""
     from ..config import load_config
     from ..core.jaxcache import enable_compilation_cache
     from ..methods import compute_shadows
     from ..reference.raycast import render_gbuffer
 
-    enable_compilation_cache()                   # the parent's empty folder
+    cache = enable_compilation_cache()           # the parent's empty folder
+    entries = sum(1 for _ in cache.iterdir())
     t1 = time.perf_counter()
     config = load_config(config_path or None, json.loads(overrides_json))
     scene = config.build_scene()
@@ -60,8 +68,8 @@ def child(t0: float, config_path: str, overrides_json: str, method: str,
         s = time.perf_counter()
         compute_shadows(scene, gbuf, view.light, method=method, **options)
         warm.append(time.perf_counter() - s)
-    print(json.dumps({
-        "scene": scene.name, "triangles": scene.num_triangles,
+    Path(out_path).write_text(json.dumps({
+        "cache_entries_at_start": entries, "scene": scene.name, "triangles": scene.num_triangles,
         "resolution": list(view.camera.resolution),
         "import_seconds": t1 - t0, "setup_seconds": t2 - t1, "first_call_seconds": t3 - t2,
         "compile_seconds": float(sum(v for k, v in result.timings.items()
@@ -70,7 +78,8 @@ def child(t0: float, config_path: str, overrides_json: str, method: str,
 
 
 def cold_start(config_path: str | None = None, overrides=(), repeats: int = 3,
-               progress: bool = True, timeout: float = 1800.0) -> dict:
+               progress: bool = True, timeout: float = 1800.0,
+               note: str | None = None) -> dict:
     """Cold start of every method of a run config (each in its own fresh process with
     an empty compilation cache); a JSON-able dict (module docstring).
 
@@ -113,24 +122,35 @@ def cold_start(config_path: str | None = None, overrides=(), repeats: int = 3,
             "scene": first.get("scene"), "triangles": first.get("triangles"),
             "resolution": first.get("resolution"), "repeats": repeats,
             "target_seconds": TARGET_SECONDS, "methods": rows,
-            "machine": machine_record(before, machine_state())}
+            "machine": machine_record(before, machine_state(), note)}
 
 
 def _measure(config_path, overrides, name, repeats, timeout) -> dict:
-    with tempfile.TemporaryDirectory(prefix="shadowlab-cold-") as cache:
-        env = dict(os.environ, SHADOWLAB_JAX_CACHE=cache)
+    import shadowlab
+
+    # the child imports this very shadowlab, wherever the command runs from
+    package_parent = str(Path(shadowlab.__file__).resolve().parent.parent)
+    with tempfile.TemporaryDirectory(prefix="shadowlab-cold-") as tmp:
+        cache, out = Path(tmp) / "jax", Path(tmp) / "result.json"
+        env = dict(os.environ, SHADOWLAB_JAX_CACHE=str(cache),
+                   PYTHONPATH=os.pathsep.join(
+                       [package_parent] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
         t0 = time.perf_counter()
         try:
-            proc = subprocess.run([sys.executable, "-c", _CHILD, config_path or "",
+            proc = subprocess.run([sys.executable, "-c", _CHILD, str(out), config_path or "",
                                    json.dumps(overrides), name, str(repeats)],
                                   env=env, capture_output=True, text=True, timeout=timeout)
-        except subprocess.TimeoutExpired:
-            return {"failed": f"no result within {timeout:.0f} s"}
+        except subprocess.TimeoutExpired as exc:
+            tail = (exc.stderr or b"")[-600:]
+            tail = tail.decode(errors="replace") if isinstance(tail, bytes) else tail
+            return {"failed": f"no result within {timeout:.0f} s; stderr: {tail.strip()}"}
         wall = time.perf_counter() - t0
-    lines = proc.stdout.strip().splitlines()
-    if proc.returncode or not lines:
+        try:
+            row = json.loads(out.read_text()) if proc.returncode == 0 else None
+        except (OSError, ValueError) as exc:
+            row, proc.stderr = None, f"{proc.stderr}\nno readable result: {exc}"
+    if row is None:
         return {"failed": f"exit status {proc.returncode}: {proc.stderr.strip()[-600:]}"}
-    row = json.loads(lines[-1])
     row["process_seconds"] = wall
     row["within_target"] = row["first_call_seconds"] <= TARGET_SECONDS
     return row
