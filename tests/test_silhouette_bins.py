@@ -1,5 +1,6 @@
 """Screen bins of the silhouette stencil: the rounding bound behind the front caps' pad,
-and the split lists and caps grid against the full passes."""
+the grid's span (outliers in border cells), and the split lists against the full
+passes."""
 
 import numpy as np
 import pytest
@@ -7,7 +8,7 @@ import pytest
 import shadowlab as sl
 import shadowlab.engines.silhouette_bins as bins
 from shadowlab.core.numerics import cross3, ordered_dot
-from shadowlab.engines.silhouette_bins import FRONT_CAP_PAD_FACTOR, cap_cells
+from shadowlab.engines.silhouette_bins import FRONT_CAP_PAD_FACTOR
 from shadowlab.scene.procedural import default_view
 
 
@@ -70,10 +71,39 @@ def test_cap_plane_rounding_within_the_pad():
     assert worst < FRONT_CAP_PAD_FACTOR / 8, worst
 
 
-def test_cap_cells_refine_with_casters_per_sample():
-    assert cap_cells(1000, 100) == (4, 16)
-    assert cap_cells(100, 1000) == (8, 64)
-    assert cap_cells(10, 100_000) == (16, 64)
+def test_the_grid_spans_the_core_of_q_and_an_outlier_lands_in_a_border_cell():
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-0.5, 0.5, 100_000)
+    assert bins.core_range(x) == (x.min(), x.max())         # no outlier: the whole box
+    lo, hi = bins.core_range(np.append(x, 60.0))             # a grazing sample's far q
+    assert -0.5 <= lo < -0.49 and 0.49 < hi < 0.56
+    basis = np.eye(3)
+    q = np.stack([np.append(x, 60.0), np.append(x[::-1], 0.0), -np.ones(len(x) + 1)], 1)
+    grid = bins.sample_grid(q, basis, (512, 512))
+    assert 1.0 / grid.scale[0] < 0.04                         # 32 cells over ~1 unit, not 60
+    assert grid.cell[-1] % grid.shape[0] == grid.shape[0] - 1  # the last column
+    assert grid.box_corners()[:, 0].max() >= 60.0             # all q still in the box
+
+
+@pytest.mark.parametrize("stencil", ["zpass", "zfail"])
+def test_border_cells_hold_every_q_outside_the_grid(monkeypatch, stencil, precision):
+    """A grid spanning only the central 60 % of the q (the rest in its border cells,
+    which reach infinity) gives the unbinned passes' per-pixel counts and lit mask."""
+    params = {"n": 2, "triangles_per_sphere": 200}
+    scene = sl.load_scene("sphere_grid", **params)
+    view = default_view("sphere_grid", scene, **params)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(32, 32)))
+    full = sl.compute_shadows(scene, gbuf, view.light, method="silhouette", bins="off",
+                              stencil=stencil, precision=precision)
+    monkeypatch.setattr(bins, "CORE_QUANTILE", 0.2)
+    monkeypatch.setattr(bins, "CORE_MARGIN", 0.0)
+    narrow = sl.compute_shadows(scene, gbuf, view.light, method="silhouette",
+                                bins="screen", stencil=stencil, precision=precision)
+    for key in ("stencil_updates_per_pixel", "cap_crossings_per_pixel"):
+        if key in full.counters:
+            assert np.array_equal(np.asarray(full.counters[key]),
+                                  np.asarray(narrow.counters[key])), key
+    assert np.array_equal(full.lit, narrow.lit)
 
 
 @pytest.mark.parametrize("stencil", ["zpass", "zfail"])

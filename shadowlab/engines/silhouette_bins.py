@@ -25,9 +25,11 @@ going into every cell; a long thin side, whose box covers many cells, enters onl
 along it. A primitive whose padded cone misses the samples' box enters no cell.
 
 Bins are screen cells of the central projection ``(x / z, y / z)`` in the camera basis,
-about TILE x TILE pixels each, over the box of the samples' projected q; cells at the
-border extend to infinity (the cell index is clamped, which is monotone, so a box's
-clamped cell range still holds every q inside it). A primitive goes into every cell its
+about TILE x TILE pixels each, over the core of the samples' projected q (all of them
+but a few far outliers, :func:`core_range`); cells at the border extend to infinity
+(the cell index is clamped, which is monotone, so a box's clamped cell range still holds
+every q inside it, an outlier q included: it lies in its border cell's rectangle, and
+a cone cut to the box of all q still meets that rectangle at q). A primitive goes into every cell its
 padded bounding box meets. A sample whose q is not in front of the eye plane tests
 every primitive.
 
@@ -80,7 +82,9 @@ class SampleGrid:
 
     Attributes:
         cell: int64 [S] the cell of each sample's q (Nc: q not in front of the eye).
-        lo, scale: (u, v) origin and cells per unit of the grid; shape: (gx, gy).
+        lo, scale: (u, v) origin and cells per unit of the grid; shape: (gx, gy). The
+            grid spans the core of the projected q (:func:`core_range`); the border
+            cells reach infinity, so a q outside the span lies in its clamped cell.
         zmax: float64 [Nb] the farthest q depth of each block (inf where a sample's q
             is not in front of the eye).
         zmin: float64 [Nb] the nearest q depth of each block (-inf where a sample's q
@@ -89,6 +93,8 @@ class SampleGrid:
         slot: int64 [S] each sample's place in the blocks' flat [Nb * B] layout.
         q: [Nb + 1, B, 3] the samples in blocks (working dtype; the last block and
             the tail of each cell's last block are zeros).
+        q_box: (u0, u1, v0, v1) the box of every projected q in front of the eye (the
+            conservative region of unbounded primitives; None: the grid's span).
     """
 
     cell: np.ndarray
@@ -101,6 +107,7 @@ class SampleGrid:
     slot: np.ndarray
     q: np.ndarray
     tile: int = TILE
+    q_box: tuple = None
 
     @property
     def block(self) -> int:
@@ -113,11 +120,15 @@ class SampleGrid:
 
     def box_corners(self) -> np.ndarray:
         """[4, 2] (u, v) corners of the samples' screen box (all projected q lie in it)."""
-        hi = [lo + (n / sc if sc > 0 else 0.0) for lo, n, sc in zip(self.lo, self.shape,
-                                                                       self.scale)]
-        margin = [1e-9 * (1.0 + abs(lo) + abs(h)) for lo, h in zip(self.lo, hi)]
-        u = (self.lo[0] - margin[0], hi[0] + margin[0])
-        v = (self.lo[1] - margin[1], hi[1] + margin[1])
+        if self.q_box is not None:
+            lo, hi = (self.q_box[0], self.q_box[2]), (self.q_box[1], self.q_box[3])
+        else:
+            lo = self.lo
+            hi = [a + (n / sc if sc > 0 else 0.0) for a, n, sc in zip(self.lo, self.shape,
+                                                                         self.scale)]
+        margin = [1e-9 * (1.0 + abs(a) + abs(h)) for a, h in zip(lo, hi)]
+        u = (lo[0] - margin[0], hi[0] + margin[0])
+        v = (lo[1] - margin[1], hi[1] + margin[1])
         return np.array([(x, y) for x in u for y in v])
 
     def cell_edges(self, axis: int) -> tuple[np.ndarray, np.ndarray]:
@@ -138,25 +149,32 @@ class SampleGrid:
                        self.shape[axis] - 1).astype(np.int64)
 
 
-def cap_cells(casters: int, samples: int) -> tuple[int, int]:
-    """(tile, block) of the caps passes' grid: the sides' 16-pixel cells, finer where the
-    casters are dense on screen (at least one per 16 samples: 8-pixel cells; one per
-    sample: 4-pixel cells of 16-sample blocks), since a cap's list then holds about
-    (casters per pixel) x (cell + padded cap) area. A performance choice only: any grid
-    gives the same counts."""
-    if casters >= samples:
-        return 4, 16
-    if 16 * casters >= samples:
-        return 8, BLOCK
-    return TILE, BLOCK
+#: the grid spans the projected q between these quantiles, widened by CORE_MARGIN of
+#: that range (and never beyond the extreme q): a few q far off screen (a grazing
+#: sample's cut point near the eye plane) must not stretch every cell
+CORE_QUANTILE = 1e-3
+CORE_MARGIN = 0.05
+
+
+def core_range(x: np.ndarray) -> tuple[float, float]:
+    """(lo, hi) of the grid along one axis: the [CORE_QUANTILE, 1 - CORE_QUANTILE]
+    quantiles of ``x`` widened by CORE_MARGIN of their range, within [min, max]. With
+    no outliers this is (min, max). A performance choice only: the border cells reach
+    infinity, so any span bins every q correctly (module docstring)."""
+    if len(x) == 0:
+        return 0.0, 0.0
+    a, b = float(x.min()), float(x.max())
+    p, r = np.quantile(x, [CORE_QUANTILE, 1.0 - CORE_QUANTILE])
+    margin = CORE_MARGIN * (r - p)
+    return max(a, float(p - margin)), min(b, float(r + margin))
 
 
 def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = TILE,
                 block: int = BLOCK) -> SampleGrid:
     """Cells and blocks of S evaluation points q [S, 3] (eye-relative, working dtype).
 
-    The grid has about one cell per ``tile`` x ``tile`` pixels over the box of the
-    projected q. The samples of a cell fill blocks of ``block`` (the last one padded with
+    The grid has about one cell per ``tile`` x ``tile`` pixels over the core of the
+    projected q (:func:`core_range`). The samples of a cell fill blocks of ``block`` (the last one padded with
     zeros), in order of depth, so that a block's depth range (the depth cuts' limit) is
     as narrow as its cell allows.
     """
@@ -164,13 +182,14 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     uq, vq, zq = uvz[:, 0], uvz[:, 1], uvz[:, 2]
     good = (zq > 0) & np.isfinite(uq) & np.isfinite(vq)
     shape = (max(1, -(-image_shape[1] // tile)), max(1, -(-image_shape[0] // tile)))
-    lo, scale = [], []
+    lo, scale, box = [], [], []
     for x, n in ((uq[good], shape[0]), (vq[good], shape[1])):
-        a, b = (x.min(), x.max()) if len(x) else (0.0, 0.0)
+        a, b = core_range(x)
         lo.append(a)
         scale.append(n / (b - a) if b > a else 0.0)
+        box += [float(x.min()), float(x.max())] if len(x) else [0.0, 0.0]
     grid = SampleGrid(None, tuple(lo), tuple(scale), shape, None, None, None, None, None,
-                      tile)
+                      tile, tuple(box))
     n_cells = shape[0] * shape[1]
     cell = np.full(len(q), n_cells, np.int64)
     cell[good] = grid.index(vq[good], 1) * shape[0] + grid.index(uq[good], 0)

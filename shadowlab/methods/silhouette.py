@@ -38,7 +38,7 @@ from ..core.frame import cap_bias, precision_mode, view_samples
 from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
-from ..engines.silhouette_bins import (cap_cells, batch_arrays, cap_shapes, farthest_depth,
+from ..engines.silhouette_bins import (batch_arrays, cap_shapes, farthest_depth,
                                       nearest_depth, sample_grid, screen_bins, side_shapes,
                                       unbatch)
 from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
@@ -313,8 +313,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                 signs = jnp.asarray(pad(s_t[keep], k_cap, dtype=np.int32))
         if passes and binned and len(keep):
             with timer.stage("caps_bins"):
-                cap_grid = sample_grid(q_host, basis, samples.shape,
-                                       *cap_cells(len(keep), samples.count))
+                cap_grid = sample_grid(q_host, basis, samples.shape)
                 cap_blocks = jnp.asarray(cap_grid.q)
         for span, back, factor, drawn_caps in passes:
             if binned and len(keep):
