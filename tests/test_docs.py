@@ -35,18 +35,19 @@ def test_readme_has_exactly_two_setup_commands_and_ci_uses_the_test_one():
 
 
 def test_benchmarks_doc_is_generated_from_the_committed_json(tmp_path):
-    """Regenerating docs/benchmarks.md from docs/bench_ci.json gives the committed file
-    (the hand-written part below the marker is kept)."""
+    """Regenerating docs/benchmarks.md from docs/bench_ci.json and the cold-start JSON
+    gives the committed file (the hand-written part below the marker is kept)."""
     from shadowlab.harness import bench_report
 
+    names = ("bench_ci.json", "cold_start.json", "cold_start_soft.json")
     committed = (ROOT / "docs" / "benchmarks.md").read_text()
     assert bench_report.KEEP_MARKER in committed
     out = tmp_path / "benchmarks.md"
     out.write_text(committed)
-    bench_report.write_benchmarks_md([ROOT / "docs" / "bench_ci.json"], out)
+    bench_report.write_benchmarks_md([ROOT / "docs" / n for n in names], out)
     assert out.read_text() == committed, (
-        "regenerate: python -m shadowlab.harness.bench_report docs/bench_ci.json "
-        "--out docs/benchmarks.md")
+        "regenerate: python -m shadowlab.harness.bench_report "
+        + " ".join(f"docs/{n}" for n in names) + " --out docs/benchmarks.md")
 
 
 def test_bench_report_renders_hard_and_soft_cases():
