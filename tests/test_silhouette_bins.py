@@ -85,25 +85,37 @@ def test_the_grid_spans_the_core_of_q_and_an_outlier_lands_in_a_border_cell():
     assert grid.box_corners()[:, 0].max() >= 60.0             # all q still in the box
 
 
-@pytest.mark.parametrize("stencil", ["zpass", "zfail"])
-def test_border_cells_hold_every_q_outside_the_grid(monkeypatch, stencil, precision):
-    """A grid spanning only the central 60 % of the q (the rest in its border cells,
-    which reach infinity) gives the unbinned passes' per-pixel counts and lit mask."""
+def _unbinned_small_grid(stencil, precision):
+    """2 x 2 spheres of 200 triangles at 32x32 and their unbinned silhouette result:
+    (scene, gbuf, light, result)."""
     params = {"n": 2, "triangles_per_sphere": 200}
     scene = sl.load_scene("sphere_grid", **params)
     view = default_view("sphere_grid", scene, **params)
     gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(32, 32)))
     full = sl.compute_shadows(scene, gbuf, view.light, method="silhouette", bins="off",
                               stencil=stencil, precision=precision)
-    monkeypatch.setattr(bins, "CORE_QUANTILE", 0.2)
-    monkeypatch.setattr(bins, "CORE_MARGIN", 0.0)
-    narrow = sl.compute_shadows(scene, gbuf, view.light, method="silhouette",
-                                bins="screen", stencil=stencil, precision=precision)
+    return scene, gbuf, view.light, full
+
+
+def _assert_same_counts(full, binned):
+    """Equal per-pixel stencil updates and cap crossings, and an equal lit mask."""
     for key in ("stencil_updates_per_pixel", "cap_crossings_per_pixel"):
         if key in full.counters:
             assert np.array_equal(np.asarray(full.counters[key]),
-                                  np.asarray(narrow.counters[key])), key
-    assert np.array_equal(full.lit, narrow.lit)
+                                  np.asarray(binned.counters[key])), key
+    assert np.array_equal(full.lit, binned.lit)
+
+
+@pytest.mark.parametrize("stencil", ["zpass", "zfail"])
+def test_border_cells_hold_every_q_outside_the_grid(monkeypatch, stencil, precision):
+    """A grid spanning only the central 60 % of the q (the rest in its border cells,
+    which reach infinity) gives the unbinned passes' per-pixel counts and lit mask."""
+    scene, gbuf, light, full = _unbinned_small_grid(stencil, precision)
+    monkeypatch.setattr(bins, "CORE_QUANTILE", 0.2)
+    monkeypatch.setattr(bins, "CORE_MARGIN", 0.0)
+    narrow = sl.compute_shadows(scene, gbuf, light, method="silhouette",
+                                bins="screen", stencil=stencil, precision=precision)
+    _assert_same_counts(full, narrow)
 
 
 @pytest.mark.parametrize("stencil", ["zpass", "zfail"])
@@ -111,12 +123,7 @@ def test_split_lists_equal_the_full_passes(monkeypatch, stencil, precision):
     """With every list split into parts of at most 4 entries (each part its own block
     of the same samples), the binned passes still give the full passes' per-pixel
     counts and lit mask."""
-    params = {"n": 2, "triangles_per_sphere": 200}
-    scene = sl.load_scene("sphere_grid", **params)
-    view = default_view("sphere_grid", scene, **params)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(32, 32)))
-    full = sl.compute_shadows(scene, gbuf, view.light, method="silhouette", bins="off",
-                              stencil=stencil, precision=precision)
+    scene, gbuf, light, full = _unbinned_small_grid(stencil, precision)
     calls = []
     real = bins.batch_arrays
 
@@ -128,12 +135,8 @@ def test_split_lists_equal_the_full_passes(monkeypatch, stencil, precision):
     monkeypatch.setattr(bins, "SPLIT_MIN", 4)
     monkeypatch.setattr(bins, "SPLIT_OVER_MEAN", 0.0)
     monkeypatch.setattr("shadowlab.methods.silhouette.batch_arrays", spy)
-    split = sl.compute_shadows(scene, gbuf, view.light, method="silhouette", bins="screen",
+    split = sl.compute_shadows(scene, gbuf, light, method="silhouette", bins="screen",
                                stencil=stencil, precision=precision)
     # some list was split (more non-empty parts than blocks)
     assert any(parts > blocks for blocks, parts in calls), calls
-    for key in ("stencil_updates_per_pixel", "cap_crossings_per_pixel"):
-        if key in full.counters:
-            assert np.array_equal(np.asarray(full.counters[key]),
-                                  np.asarray(split.counters[key])), key
-    assert np.array_equal(full.lit, split.lit)
+    _assert_same_counts(full, split)

@@ -57,26 +57,24 @@ _active: contextvars.ContextVar["Checkpoint | None"] = contextvars.ContextVar(
     "shadowlab_checkpoint", default=None)
 
 
-def _plain(value):
-    """NumPy scalars and arrays, tuples and dicts as plain JSON values (non-finite
-    floats kept, unlike :func:`shadowlab.core.io.jsonable`)."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, (str, int, float, bool)) or value is None:
-        return value
+def _numpy(value):
+    """``json``'s fallback: NumPy scalars and arrays as numbers and (nested) lists;
+    anything else is refused."""
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
     raise TypeError(f"a checkpointed point's value must be JSON-able, got "
                     f"{type(value).__name__}")
 
 
+def _dumps(value, **kwargs) -> str:
+    """JSON text of ``value``, NumPy values included (non-finite floats kept, unlike
+    :func:`shadowlab.core.io.jsonable`)."""
+    return json.dumps(value, default=_numpy, **kwargs)
+
+
 def _as_json(values):
     """``values`` as a JSON round trip returns them (what a resumed point gives)."""
-    return json.loads(json.dumps(_plain(values)))
+    return json.loads(_dumps(values))
 
 
 @functools.lru_cache(maxsize=1)
@@ -108,10 +106,10 @@ def run_key(name: str, size: str, cfg: dict, module_file: str | os.PathLike | No
     from .. import __version__
 
     source = Path(module_file).read_bytes() if module_file else b""
-    ident = {"experiment": name, "size": size, "config": _plain(cfg),
+    ident = {"experiment": name, "size": size, "config": cfg,
              "version": __version__, "code": code_hash(), **_toolchain(),
              "module": hashlib.sha256(source).hexdigest()}
-    return hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:16]
+    return hashlib.sha256(_dumps(ident, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def _load_average():
@@ -171,15 +169,16 @@ class Checkpoint:
         if record is not None:
             self.resumed.append({k: record.get(k) for k in
                                  ("label", "written", "host", "load_average")})
-            return _as_json(record["values"])
+            return record["values"]
         values = compute()
         record = {"label": label, "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                   "host": socket.gethostname(), "load_average": _load_average(),
-                  "values": _plain(values)}
+                  "values": values}
+        text = _dumps(record)
         with io.atomic_path(path) as tmp:
-            tmp.write_text(json.dumps(record))
+            tmp.write_text(text)
         self.written += 1
-        return _as_json(record["values"])
+        return json.loads(text)["values"]
 
     def discard(self) -> None:
         """Remove this run's folder (and ``.checkpoints`` if that leaves it empty)."""

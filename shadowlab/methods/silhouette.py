@@ -311,10 +311,6 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                 edges3 = jnp.asarray(pad(etable[tri_edges[keep]], k_cap, dtype=dtype))
                 terms = jnp.asarray(pad(np.asarray(cap_terms)[keep], k_cap, dtype=dtype))
                 signs = jnp.asarray(pad(s_t[keep], k_cap, dtype=np.int32))
-        if passes and binned and len(keep):
-            with timer.stage("caps_bins"):
-                cap_grid = sample_grid(q_host, basis, samples.shape)
-                cap_blocks = jnp.asarray(cap_grid.q)
         for span, back, factor, drawn_caps in passes:
             if binned and len(keep):
                 with timer.stage("caps_bins"):
@@ -323,11 +319,11 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                         shapes = shapes[1:]                 # the back caps' shape only
                     near = nearest_depth(shapes[0][0], basis) if span == "front" else None
                     far = farthest_depth(shapes[0][0], basis) if span == "behind" else None
-                    sb = screen_bins(cap_grid, shapes, eps_w, basis, near, far)
-                    args = batch_arrays(cap_grid, sb)
-                cs, cu = timer.run("caps", binned_cap_kernel(span, back), cap_blocks,
+                    sb = screen_bins(grid, shapes, eps_w, basis, near, far)
+                    args = batch_arrays(grid, sb)
+                cs, cu = timer.run("caps", binned_cap_kernel(span, back), q_blocks,
                                    *map(jnp.asarray, args), edges3, terms, signs, zero)
-                cs, cu = (unbatch(cap_grid, args[0], x) for x in (cs, cu))
+                cs, cu = (unbatch(grid, args[0], x) for x in (cs, cu))
                 cap_tests += sb.tests
             else:
                 cs, cu = timer.run("caps", cap_kernel(chunk, span, back), q_rel, edges3,
