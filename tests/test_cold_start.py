@@ -64,6 +64,8 @@ def test_a_child_that_prints_or_runs_long_cannot_break_the_result(tmp_path, monk
 
 def test_cold_refuses_pareto_and_only_and_a_bad_config(tmp_path, capsys):
     out = tmp_path / "cold.json"
+    assert main(["bench", "--cold", "--size", "ci", "--out", str(out)]) == 2
+    assert "--size (of the built-in cases) does not apply" in capsys.readouterr().err
     for extra in (["--only", "gate-1024"], ["--pareto"]):
         assert main(["bench", "--cold", *extra, "--out", str(out)]) == 2
         assert "takes no --pareto or --only" in capsys.readouterr().err

@@ -314,3 +314,10 @@ def test_the_checkpoint_key_follows_the_config_size_and_experiment_source(tmp_pa
     toy = tmp_path / "toy.py"
     toy.write_text(module.read_text() + "\n# edited\n")
     assert checkpoints.run_key("silhouette_work", "ci", {"repeats": 1}, toy) != key
+
+
+def test_fresh_with_claims_only_is_refused(tmp_path, capsys):
+    from shadowlab.cli import main
+
+    assert main(["figures", "--claims-only", "--fresh", "--root", str(tmp_path)]) == 2
+    assert "--claims-only runs nothing, so --fresh" in capsys.readouterr().err
