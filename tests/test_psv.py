@@ -109,6 +109,33 @@ def test_reused_tree_gives_the_same_result(precision):
     assert r.counters["tree_reused"] == 0
 
 
+@pytest.mark.parametrize("tile", [5, 8])
+def test_lane_tiles_keep_every_result(tile, precision):
+    """``lane_tile`` only regroups the query's lanes: the lit mask and every counter
+    (per-pixel visits, stack use, overflows, switches) equal the row-major run."""
+    scene, light, gbuf, _ = _scene("fuzzy")
+    for m in METHODS:
+        rows = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision)
+        tiled = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision,
+                                   lane_tile=tile)
+        _same(rows, tiled)
+
+
+def test_tile_order_groups_pixels_by_tile():
+    """Samples.tile_order against a plain loop over the tiles and their pixels."""
+    scene, light, gbuf, _ = _scene("gate")
+    samples = view_samples(gbuf, light)
+    h, w = samples.shape
+    tile = 6                                    # does not divide 64: partial tiles
+    at = {int(i): k for k, i in enumerate(samples.index)}
+    expected = [at[y * w + x]
+                for ty in range(0, h, tile) for tx in range(0, w, tile)
+                for y in range(ty, min(ty + tile, h)) for x in range(tx, min(tx + tile, w))
+                if y * w + x in at]
+    assert samples.tile_order(tile).tolist() == expected
+    assert samples.tile_order(1).tolist() == list(range(samples.count))
+
+
 def test_stack_overflow_is_detected_and_hybrid_switches():
     scene, light, gbuf, truth = _scene("fuzzy")
     r = sl.compute_shadows(scene, gbuf, light, method="psv", stack_size=1)

@@ -212,6 +212,16 @@ class Samples:
         """``values`` [count, ...] zero-padded to [capacity, ...] in ``dtype``."""
         return pad(values, capacity or bucket(self.count, steps=8), dtype=dtype)
 
+    def tile_order(self, tile: int) -> np.ndarray:
+        """int64 [S]: the samples reordered by ``tile`` x ``tile`` pixel tiles (tiles
+        row-major, pixels row-major within a tile); ``tile=1`` is the identity."""
+        if tile <= 1:
+            return np.arange(self.count)
+        y, x = np.divmod(self.index, self.shape[1])
+        tiles_x = -(-self.shape[1] // tile)
+        key = ((y // tile) * tiles_x + x // tile) * (tile * tile) + (y % tile) * tile + x % tile
+        return np.argsort(key, kind="stable")
+
     def scatter(self, values: np.ndarray, fill=0) -> np.ndarray:
         """An image [H, W] with ``values[:count]`` at the sample pixels, ``fill`` elsewhere."""
         values = np.asarray(values)[: self.count]

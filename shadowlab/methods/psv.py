@@ -494,7 +494,8 @@ def _compact_kernel(nb: int, k: int):
 def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.ndarray,
               light_h: np.ndarray, *, query: str, depth_test: bool, wedge: str,
               stack_size: int, stackless_cap: str = "paper", edge_tie: str = "inside",
-              chunk: int = 32, timer: StageTimer | None = None) -> dict:
+              chunk: int = 32, lane_order: np.ndarray | None = None,
+              timer: StageTimer | None = None) -> dict:
     """Locate every point in the tree.
 
     Args:
@@ -502,6 +503,9 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
             (``top_tree.light_key``); light_h: float64 [4].
         query: "stack" (PSV / D-PSV; a push onto a full stack is lost and counted),
             "stackless" (D-Stackless), "hybrid" (short stack, stackless when full).
+        lane_order: int [S] permutation of the points: lane i locates point
+            ``lane_order[i]`` (None: point order). A lane's result does not depend on
+            its neighbours, so the order changes only which lanes share a tile.
 
     Returns:
         dict of NumPy arrays [S]: ``shadow`` bool, ``visited``, ``stack_max``,
@@ -527,9 +531,9 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     n_chunks = 0
     with timer.stage("query_setup"):
         b = bucket(max(s_count, 1), minimum=MIN_LANES, steps=4)
-        lane_id = np.arange(s_count)
-        cur = [pad(points.astype(dt), b), pad(scale.astype(dt), b),
-               pad(key.astype(dt), b, np.inf)]
+        lane_id = np.arange(s_count) if lane_order is None else np.asarray(lane_order)
+        cur = [pad(points[lane_id].astype(dt), b), pad(scale[lane_id].astype(dt), b),
+               pad(key[lane_id].astype(dt), b, np.inf)]
         dev = [jnp.asarray(a) for a in cur]
         del cur
         live0 = s_count if tree.root >= 0 else 0
@@ -601,6 +605,10 @@ _COMMON = {
                     "slow)", allowed=("parallel", "sequential")),
     "chunk": Option(32, "node visits per lane between compactions of unfinished lanes",
                     kind=int, minimum=1),
+    "lane_tile": Option(1, "query lanes in square pixel tiles of this side (lanes of a "
+                        "tile are neighbours in memory and visit similar nodes); 1 = "
+                        "row-major samples. Results and counters do not depend on it",
+                        kind=int, minimum=1, maximum=64),
     "reuse_tree": Option(False, "keep the TOP tree for the next call with the same scene, "
                          "light and build options (a static light and geometry: the tree "
                          "depends on neither camera nor samples unless frustum_culling is "
@@ -650,10 +658,12 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
         with timer.stage("query_setup"):
             key = tt.light_key(samples.position, light_h)
             pts = samples.position.astype(dtype)
+            order = samples.tile_order(o["lane_tile"]) if o["lane_tile"] > 1 else None
         res = run_query(tree, pts, scale, key, light_h,
                         query=query, depth_test=depth_test, wedge=o["wedge"],
                         stack_size=stack_size, stackless_cap=stackless_cap,
-                        edge_tie=o["edge_tie"], chunk=o["chunk"], timer=timer)
+                        edge_tie=o["edge_tie"], chunk=o["chunk"], lane_order=order,
+                        timer=timer)
     t_out = time.perf_counter()
     shadow = res["shadow"]
     lit = samples.scatter(~shadow, fill=False)
