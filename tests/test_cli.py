@@ -286,6 +286,23 @@ def test_bench_bad_arguments_exit_2(tmp_path, capsys):
     assert not (tmp_path / "b.json").exists()
 
 
+@pytest.mark.parametrize("size", ["ci", "full"])
+def test_every_built_in_bench_case_is_a_valid_config(size):
+    """Each case of shadowlab/configs/bench.toml loads (scene parameters, methods and
+    their options validated) without running anything; names are unique."""
+    from shadowlab.config import load_config
+    from shadowlab.harness.bench import case_repeats, default_cases
+    from shadowlab.methods import get
+
+    cases = default_cases(size)
+    assert len({c["name"] for c in cases}) == len(cases)
+    for c in cases:
+        config = load_config(None, list(c["overrides"]))
+        for name in config.methods.names:
+            get(name)
+        assert 1 <= case_repeats(c["name"], 5) <= 5
+
+
 def test_bench_records_the_machine_load_and_says_when_it_was_busy():
     from shadowlab.harness.bench import BUSY_LOAD_PER_CORE, machine_record
 
