@@ -135,6 +135,12 @@ def test_summary_and_readme_block_state_the_fronts(exp):
     assert "| 0.0200 | `s1` | 50.00 | 20.00 |" in block
     assert "| 0.0010 | `s2` | 500.00 | - |" in block
     assert "`a`" not in block                       # dominated by b
+    assert "load was not recorded" in block
+    machine = {"cpus": 2, "load_average_before": [0.3, 0.5, 0.6],
+               "load_average_after": [1.9, 1.8, 1.2]}
+    block = pareto_readme.render_block({"summary": s, "size": "full", "machine": machine,
+                                        "config": {"resolution": [10, 10], "repeats": 1}})
+    assert "load average 0.30 at the start and 1.90 at the end (2 cores" in block
 
 
 def test_check_fails_on_unexplained_exact_error(exp):

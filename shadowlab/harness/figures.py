@@ -178,13 +178,18 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
     out = out or root / "figures"
     checkpoint = checkpoints.Checkpoint(out, name, size,
                                         checkpoints.run_key(name, size, cfg, path), fresh)
+    from .bench import machine_record, machine_state
+
+    before = machine_state()
     t0 = time.perf_counter()
     with checkpoints.active(checkpoint):
         arrays = module.run(cfg)
     seconds = time.perf_counter() - t0
+    machine = machine_record(before, machine_state())
     fig = module.plot(arrays)
     meta = {"experiment": name, "size": size, "config": cfg, "run_seconds": seconds,
-            **_measured(module, arrays, cfg), "provenance": io.provenance()}
+            **_measured(module, arrays, cfg), "provenance": io.provenance(),
+            "machine": machine}
     if checkpoint.resumed:
         meta["checkpoint"] = {"resumed": checkpoint.resumed,
                               "note": "run_seconds counts this run only; the resumed "

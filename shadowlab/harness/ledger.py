@@ -176,14 +176,26 @@ def render(runs: dict[str, dict]) -> str:
                          f"| {_cell(c.get('note', ''))} |")
     else:
         lines.append("None.")
-    lines += ["", "## Runs", "", "| experiment | size | commit | run (s) | claims recorded |",
-              "|---|---|---|---|---|"]
+    lines += ["", "## Runs", "",
+              "| experiment | size | commit | run (s) | claims recorded | load average, start / end |",
+              "|---|---|---|---|---|---|"]
     for n, run in runs.items():
         commit = (run.get("provenance") or {}).get("commit") or "-"
         lines.append(f"| `{n}` | {run.get('size')}{' (stale)' if run['_stale'] else ''} "
                      f"| `{commit[:8]}` | {float(run.get('run_seconds', 0)):.0f} "
-                     f"| {len(run['claims'])} |")
+                     f"| {len(run['claims'])} | {_load_label(run.get('machine'))} |")
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _load_label(machine: dict | None) -> str:
+    """The 1-minute load averages at a run's start and end (``machine`` record of the
+    figures JSON, on the run's cores, its own threads included); "not recorded" for older runs,
+    which did not record them."""
+    if not machine or not machine.get("load_average_before") \
+            or not machine.get("load_average_after"):
+        return "not recorded"
+    return (f"{machine['load_average_before'][0]:.2f} / "
+            f"{machine['load_average_after'][0]:.2f} ({machine.get('cpus', '?')} cores)")
 
 
 def write_ledger(figures="figures", out="docs/claims.md", root=".") -> Path:

@@ -36,6 +36,20 @@ def _ratio(seconds, ref) -> str:
     return "-" if ref is None or not ref > 0 else f"{float(seconds) / float(ref):.2f}x"
 
 
+def machine_sentence(data: dict) -> str:
+    """What the JSON's ``machine`` record (``harness.bench.machine_record``, written by
+    ``shadowlab figures``) says of the load the timings were taken under."""
+    m = data.get("machine")
+    if not m:
+        return "The machine's load was not recorded with this run."
+    loads = [m.get("load_average_before"), m.get("load_average_after")]
+    if not all(loads):
+        return "The machine's load average is not available on its platform."
+    text = (f"1-minute load average {loads[0][0]:.2f} at the start and {loads[1][0]:.2f} "
+            f"at the end ({m.get('cpus', '?')} cores; the run's own threads count).")
+    return text + (f" Note: {m['note']}." if m.get("note") else "")
+
+
 def render_block(data: dict, figure: str = "figures/pareto.png") -> str:
     """The markdown block (markers included) for the experiment JSON ``data``."""
     summary = data["summary"]
@@ -46,7 +60,7 @@ def render_block(data: dict, figure: str = "figures/pareto.png") -> str:
              f"![run time against error, every registered method]({figure})", "",
              f"Experiment `pareto` at {data.get('size', '?')} size ({w}x{h}, warm medians "
              f"of {cfg.get('repeats', '?')} run(s), compile excluded; commit "
-             f"{str(prov.get('commit', '?'))[:12]}). Timings come from a shared machine under load. "
+             f"{str(prov.get('commit', '?'))[:12]}). {machine_sentence(data)} "
              "Per scene, the fastest method at each error level (the Pareto front; "
              "error: mismatching valid pixels against Embree shadow rays for hard "
              "shadows, mean absolute error against the Monte Carlo truth on the "
