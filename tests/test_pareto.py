@@ -133,8 +133,12 @@ def test_summary_and_readme_block_state_the_fronts(exp):
     assert "| 0 | `b` | 2.00 | 2.00x |" in block
     assert "| 3 | `sm512-slope` | 1.00 | 1.00x |" in block
     assert "| 0.0200 | `s1` | 50.00 | 20.00 |" in block
-    assert "| 0.0010 | `s2` | 500.00 | - |" in block
+    assert "| 0.0010 | `s2` | 500.00 | > 40.00 (beyond" in block   # below the curve
     assert "`a`" not in block                       # dominated by b
+    points = [{"rays": 4, "seconds": 0.01, "mae": 0.04}, {"rays": 16, "seconds": 0.04, "mae": 0.01}]
+    worse = {"error": 0.08, "embree_seconds": None}
+    assert pareto_readme._embree_at(worse, points) == "< 10.00 (4 rays are more accurate)"
+    assert pareto_readme._embree_at({"error": 0.02, "embree_seconds": 0.02}, points) == "20.00"
     assert "load was not recorded" in block
     machine = {"cpus": 2, "load_average_before": [0.3, 0.5, 0.6],
                "load_average_after": [1.9, 1.8, 1.2]}

@@ -36,6 +36,21 @@ def _ratio(seconds, ref) -> str:
     return "-" if ref is None or not ref > 0 else f"{float(seconds) / float(ref):.2f}x"
 
 
+def _embree_at(row: dict, points: list[dict]) -> str:
+    """Embree's soft-reference time at the row's MAE: interpolated on its curve, or a
+    bound outside it ("> t": more accurate than its most accurate point, which took t;
+    "< t": less accurate than its cheapest point)."""
+    if row["embree_seconds"] is not None or not points:
+        return _ms(row["embree_seconds"])
+    best = min(points, key=lambda c: c["mae"])
+    worst = max(points, key=lambda c: c["mae"])
+    if row["error"] < best["mae"]:
+        return f"> {_ms(best['seconds'])} (beyond {best['rays']} rays)"
+    if row["error"] > worst["mae"]:
+        return f"< {_ms(worst['seconds'])} ({worst['rays']} rays are more accurate)"
+    return "-"
+
+
 def machine_sentence(data: dict) -> str:
     """What the JSON's ``machine`` record (``harness.bench.machine_record``, written by
     ``shadowlab figures``) says of the load the timings were taken under."""
@@ -84,9 +99,10 @@ def render_block(data: dict, figure: str = "figures/pareto.png") -> str:
             lines += [f"`{scene}`, soft shadows (Embree soft reference: {curve}):", "",
                       "| MAE at most | fastest | ms | Embree at equal MAE (ms) |",
                       "|---|---|---|---|"]
+            points = summary["scenes"][scene].get("embree_soft", [])
             for r in soft:
                 lines.append(f"| {r['error']:.4f} | `{r['fastest']}` | {_ms(r['seconds'])} "
-                             f"| {_ms(r['embree_seconds'])} |")
+                             f"| {_embree_at(r, points)} |")
             lines.append("")
     lines.append(END)
     return "\n".join(lines)
