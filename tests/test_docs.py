@@ -39,7 +39,8 @@ def test_benchmarks_doc_is_generated_from_the_committed_json(tmp_path):
     gives the committed file (the hand-written part below the marker is kept)."""
     from shadowlab.harness import bench_report
 
-    names = ("bench_ci.json", "bench_targets.json", "cold_start.json", "cold_start_soft.json")
+    names = ("bench_ci.json", "bench_targets.json", "bench_soft_1024.json", "cold_start.json",
+             "cold_start_soft.json")
     committed = (ROOT / "docs" / "benchmarks.md").read_text()
     assert bench_report.KEEP_MARKER in committed
     out = tmp_path / "benchmarks.md"
@@ -63,7 +64,8 @@ def test_bench_report_renders_hard_and_soft_cases():
             "error": {"valid_pixels": 100, "mae": 0.0012, "rmse": 0.015, "max_error": 0.5,
                       "ssim": 0.975, "penumbra_pixels": 40, "penumbra_mae": 0.0125,
                       "penumbra_rmse": 0.025, "penumbra_max_error": 0.5, "penumbra_ssim": 0.875},
-            "embree_seconds_at_equal": {"penumbra_mae": 0.125, "penumbra_rmse": None}}
+            "embree_seconds_at_equal": {"penumbra_mae": 0.125, "penumbra_rmse": None},
+            "embree_seconds_at_equal_lower_bound": {"penumbra_ssim": 2.0}}
     case = {"name": "c1", "scene": "s", "triangles": 1234, "resolution": [16, 8],
             "valid_pixels": 100, "reference": {"median_seconds": 0.01, "runs": [0.01]},
             "soft_reference": {"rays": 256, "curve": [{"rays": 4, "seconds": 0.5, "mae": 0.003}]},
@@ -80,7 +82,7 @@ def test_bench_report_renders_hard_and_soft_cases():
                                                  " 0.500 ", " 0.9750 ", " 750.0 "]
     penumbra = [line for line in text.splitlines() if line.startswith("| `m_soft` | 40 |")]
     assert penumbra == ["| `m_soft` | 40 | 0.0125 (125.0) | 0.0250 (-) | 0.500 (-) "
-                        "| 0.8750 (-) |"]
+                        "| 0.8750 (> 2000.0) |"]     # beyond Embree's curve: a bound
     assert "skipped: no area light" in rows["`m_skip`"]
     assert "4 rays 500.0 ms MAE 0.0030" in text and "1,234 triangles, 16x8" in text
     assert "Machine load: not recorded" in text

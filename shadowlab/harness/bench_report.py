@@ -125,9 +125,19 @@ def _soft_table(case: dict) -> list[str]:
         out.append(f"| `{name}` | {_ms(m['median_seconds'])} | {m['compile_seconds']:.2f} "
                    f"| {e['mae']:.4f} | {e['rmse']:.4f} | {e['max_error']:.3f} "
                    f"| {_num(e.get('ssim'), '.4f')} "
-                   f"| {_ms(m.get('embree_seconds_at_equal_error'))} | {_stages(m)} |")
+                   f"| {_at_equal(m, 'mae', m.get('embree_seconds_at_equal_error'))} "
+                   f"| {_stages(m)} |")
     out += _penumbra_table(rows)
     return out
+
+
+def _at_equal(m: dict, metric: str, seconds) -> str:
+    """Embree's soft time at the method's value of ``metric`` (ms), or "> t" where the
+    method beats Embree's whole curve (``embree_seconds_at_equal_lower_bound``)."""
+    if seconds is not None:
+        return _ms(seconds)
+    bound = (m.get("embree_seconds_at_equal_lower_bound") or {}).get(metric)
+    return f"> {_ms(bound)}" if bound is not None else "-"
 
 
 _PENUMBRA = (("penumbra_mae", "MAE", ".4f"), ("penumbra_rmse", "RMSE", ".4f"),
@@ -141,12 +151,14 @@ def _penumbra_table(rows) -> list[str]:
         return []
     out = ["", "Penumbra region (true visibility strictly between 0 and 1, dilated): the "
            "method's error, and in brackets the Embree soft reference's time (ms) at the "
-           "same value (- outside its measured curve).", "",
+           "same value (> t: more accurate than Embree's most accurate point, which took t; "
+           "- outside its measured curve otherwise).", "",
            "| method | pixels | " + " | ".join(label for _, label, _ in _PENUMBRA) + " |",
            "|---|---|" + "---|" * len(_PENUMBRA)]
     for name, m in rows:
         e, at = m["error"], m.get("embree_seconds_at_equal", {})
-        cells = [f"{_num(e.get(k), fmt)} ({_ms(at.get(k))})" for k, _, fmt in _PENUMBRA]
+        cells = [f"{_num(e.get(k), fmt)} ({_at_equal(m, k, at.get(k))})"
+                 for k, _, fmt in _PENUMBRA]
         out.append(f"| `{name}` | {e.get('penumbra_pixels', '-')} | " + " | ".join(cells)
                    + " |")
     return out
