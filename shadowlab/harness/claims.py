@@ -350,10 +350,11 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("k23.clamp", "K23", "Projection",
           "The max(0.0001, ...) clamp of the projection works without artifacts",
           kind="qualitative", experiments=("soft_tiled_stability",),
-          explain="a caster vertex behind the fragment, or within 1e-4 / s in front of it "
-                  "(where an object touches the receiver), is mirrored by abs() and pulled "
-                  "in by the clamp, so the projected triangle covers the wrong cells; the "
-                  "homogeneous projection (the default) has neither and removes the error"),
+          explain="abs() mirrors a caster vertex behind the fragment and the clamp pulls in "
+                  "one within 1e-4 / s in front of it (the fragment's neighbours on its own "
+                  "surface, and objects touching the receiver), so the projected triangle "
+                  "covers the wrong cells; the homogeneous projection with two-sided lists "
+                  "(the defaults) removes the error"),
     Claim("k23.rotation", "K23", "Fixing banding",
           "Randomly rotating the grid removes the banding without visible noise",
           kind="qualitative", experiments=("soft_tiled_error",)),
