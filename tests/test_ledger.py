@@ -82,3 +82,11 @@ def test_verdicts_and_run_sizes_are_shown():
     assert row["verdict"] == "holds" and row["run"].startswith("full") and row["why"] == ""
     assert {r["id"]: r for r in ledger.rows(runs)}["s14.fig1c.volume"]["verdict"] == \
         "not measured"
+
+
+def test_runs_table_states_the_recorded_load():
+    from shadowlab.harness.ledger import _load_label
+
+    assert _load_label(None) == "not recorded"
+    rec = {"cpus": 2, "load_average_before": [0.25, 0.5, 0.5], "load_average_after": [1.75, 1, 1]}
+    assert _load_label(rec) == "0.25 / 1.75 (2 cores)"

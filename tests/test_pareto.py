@@ -145,6 +145,8 @@ def test_summary_and_readme_block_state_the_fronts(exp):
     block = pareto_readme.render_block({"summary": s, "size": "full", "machine": machine,
                                         "config": {"resolution": [10, 10], "repeats": 1}})
     assert "load average 0.30 at the start and 1.90 at the end (2 cores" in block
+    busy = dict(machine, note="not idle at the start: 1-minute load average 3.00")
+    assert "Note: not idle at the start" in pareto_readme.machine_sentence({"machine": busy})
 
 
 def test_check_fails_on_unexplained_exact_error(exp):

@@ -121,6 +121,39 @@ def test_lane_tiles_keep_every_result(tile, precision):
         _same(rows, tiled)
 
 
+def test_lane_tile_reaches_the_query(monkeypatch):
+    """The option is not ignored: ``_run`` hands run_query the tile order (and no order
+    at ``lane_tile=1``), and run_query refuses an order that is not a permutation."""
+    scene, light, gbuf, _ = _scene("gate")
+    seen = []
+    real = psvm.run_query
+
+    def spy(*args, lane_order=None, **kwargs):
+        seen.append(lane_order)
+        return real(*args, lane_order=lane_order, **kwargs)
+
+    monkeypatch.setattr(psvm, "run_query", spy)
+    sl.compute_shadows(scene, gbuf, light, method="d_stackless", lane_tile=8)
+    sl.compute_shadows(scene, gbuf, light, method="d_stackless")
+    expected = view_samples(gbuf, light).tile_order(8)
+    assert np.array_equal(seen[0], expected) and not np.array_equal(
+        expected, np.arange(expected.size))
+    assert seen[1] is None
+    monkeypatch.undo()
+    with precision_mode("float32") as dt:
+        tree, scale, _ = psvm.build_tree(scene, light, gbuf.camera, view_samples(gbuf, light),
+                                         dtype=dt, shadow_eps=1e-4, bias="receiver",
+                                         order="random", seed=0, wedge="conservative",
+                                         classify_ulps=64, face_culling="none",
+                                         frustum_culling=False, build="parallel")
+        pts = np.zeros((4, 3), dt)
+        with pytest.raises(ValueError, match="permutation of the 4 points"):
+            psvm.run_query(tree, pts, np.ones(4, dt), np.zeros(4, dt),
+                           np.asarray(light.homogeneous, np.float64), query="stackless",
+                           depth_test=True, wedge="conservative", stack_size=0,
+                           lane_order=[0, 0, 1, 2])
+
+
 def test_tile_order_groups_pixels_by_tile():
     """Samples.tile_order against a plain loop over the tiles and their pixels."""
     scene, light, gbuf, _ = _scene("gate")

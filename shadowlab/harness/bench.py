@@ -223,16 +223,18 @@ def machine_state() -> dict:
 
 def machine_record(before: dict, after: dict, note: str | None = None) -> dict:
     """The ``machine`` entry of a bench JSON: load before and after the run, and a note
-    that says when the machine was not idle (1-minute load above
-    ``BUSY_LOAD_PER_CORE`` per core at either end) besides the user's ``note``."""
+    that says when the machine was busy when the run started (1-minute load above
+    ``BUSY_LOAD_PER_CORE`` per core) besides the user's ``note``. The load after the run
+    is recorded but not judged: it counts the run's own threads."""
     rec = {"date_utc": before["date_utc"], "cpus": before["cpus"],
            "load_average_before": before["load_average"],
            "load_average_after": after["load_average"]}
     notes = [note] if note else []
-    loads = [m["load_average"][0] for m in (before, after) if m["load_average"]]
-    if loads and max(loads) > BUSY_LOAD_PER_CORE * (before["cpus"] or 1):
-        notes.append(f"not idle: 1-minute load average up to {max(loads):.2f} on "
-                     f"{before['cpus']} cores, so times are slower than on an idle machine")
+    start = before["load_average"][0] if before["load_average"] else None
+    if start is not None and start > BUSY_LOAD_PER_CORE * (before["cpus"] or 1):
+        notes.append(f"not idle at the start: 1-minute load average {start:.2f} on "
+                     f"{before['cpus']} cores (other jobs, or the tail of one that just "
+                     f"ended), so times may be slower than on an idle machine")
     if notes:
         rec["note"] = "; ".join(notes)
     return rec

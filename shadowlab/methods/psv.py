@@ -531,9 +531,18 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     n_chunks = 0
     with timer.stage("query_setup"):
         b = bucket(max(s_count, 1), minimum=MIN_LANES, steps=4)
-        lane_id = np.arange(s_count) if lane_order is None else np.asarray(lane_order)
-        cur = [pad(points[lane_id].astype(dt), b), pad(scale[lane_id].astype(dt), b),
-               pad(key[lane_id].astype(dt), b, np.inf)]
+        if lane_order is None:
+            lane_id = np.arange(s_count)
+            src = (points, scale, key)
+        else:
+            lane_id = np.asarray(lane_order, np.intp)
+            if lane_id.shape != (s_count,) or not np.array_equal(
+                    np.sort(lane_id), np.arange(s_count)):
+                raise ValueError(f"lane_order must be a permutation of the {s_count} "
+                                 f"points; got shape {lane_id.shape}")
+            src = (points[lane_id], scale[lane_id], key[lane_id])
+        cur = [pad(src[0].astype(dt), b), pad(src[1].astype(dt), b),
+               pad(src[2].astype(dt), b, np.inf)]
         dev = [jnp.asarray(a) for a in cur]
         del cur
         live0 = s_count if tree.root >= 0 else 0
