@@ -102,3 +102,23 @@ def test_fig4_stackless_path(seed):
     # the depth test never adds visits, with or without a stack
     assert np.all(dps["visited"] <= r["stack"]["visited"])
     assert np.all(r["d_stackless"]["visited"] <= r["stackless"]["visited"])
+
+
+def test_sec4_1_node_memory():
+    """Sec. 3.6 / 4.1: four nodes of 32 bytes per triangle, depth and ancestor links at
+    no extra memory. Here: 4 nodes per merged triangle, each one 32-byte row (float32:
+    plane a, b, c, d, wedge, extra, pos, inter); the depth sits in the otherwise unused
+    ``extra`` slot of a volume's first node (no memory), the ancestor link is one int32
+    per volume (4 bytes per triangle, 1 per node: the paper packs it into unused bits)."""
+    scene = _occluders()
+    pts = np.zeros((4, 3))
+    tree, _ = _queries(scene, pts)
+    merged = tree.stats()["merged_triangles"]
+    assert merged == scene.num_triangles and tree.stats()["tree_nodes"] == 4 * merged
+    volumes = tree.plane.shape[0] // 4          # the arrays' capacity (a static bucket)
+    assert tree.plane.shape[0] == 4 * volumes and volumes >= merged
+    rows, anc = psvm.node_arrays(tree, rows=True)
+    assert rows.shape == (4 * volumes, 8) and rows.dtype == np.float32
+    assert rows.nbytes == 32 * rows.shape[0]                           # 32 bytes per node
+    np.testing.assert_array_equal(rows[0::4, 5], tree.depth)          # depth: no extra array
+    assert anc.shape == (volumes,) and anc.dtype.itemsize == 4         # +4 bytes per volume
