@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import io
+from ..core.machine import BUSY_LOAD_PER_CORE, machine_record, machine_state  # noqa: F401
 from ..scene import caches
 from ..analysis import compare_soft
 from .evaluate import References, evaluate
@@ -201,43 +202,6 @@ def case_repeats(name: str | None, repeats: int) -> int:
             if c["name"] == name and "repeats" in c:
                 return max(1, min(repeats, int(c["repeats"])))
     return repeats
-
-
-#: 1-minute load average per core above which a run is marked as not idle
-BUSY_LOAD_PER_CORE = 0.25
-
-
-def machine_state() -> dict:
-    """Date (UTC), CPU count and load averages (1, 5, 15 min; None where the platform
-    has none) of this machine now."""
-    import datetime
-    import os
-
-    try:
-        load = [round(x, 2) for x in os.getloadavg()]
-    except OSError:
-        load = None
-    return {"date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d"),
-            "cpus": os.cpu_count(), "load_average": load}
-
-
-def machine_record(before: dict, after: dict, note: str | None = None) -> dict:
-    """The ``machine`` entry of a bench JSON: load before and after the run, and a note
-    that says when the machine was busy when the run started (1-minute load above
-    ``BUSY_LOAD_PER_CORE`` per core) besides the user's ``note``. The load after the run
-    is recorded but not judged: it counts the run's own threads."""
-    rec = {"date_utc": before["date_utc"], "cpus": before["cpus"],
-           "load_average_before": before["load_average"],
-           "load_average_after": after["load_average"]}
-    notes = [note] if note else []
-    start = before["load_average"][0] if before["load_average"] else None
-    if start is not None and start > BUSY_LOAD_PER_CORE * (before["cpus"] or 1):
-        notes.append(f"not idle at the start: 1-minute load average {start:.2f} on "
-                     f"{before['cpus']} cores (other jobs, or the tail of one that just "
-                     f"ended), so times may be slower than on an idle machine")
-    if notes:
-        rec["note"] = "; ".join(notes)
-    return rec
 
 
 def run_bench(configs: list, repeats: int = 5, out: str | Path | None = None,

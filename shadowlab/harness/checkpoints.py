@@ -49,6 +49,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..core import io
+from ..core.machine import load_average
 
 #: the folder, under a figures output folder, that holds unfinished runs' points
 FOLDER = ".checkpoints"
@@ -112,13 +113,6 @@ def run_key(name: str, size: str, cfg: dict, module_file: str | os.PathLike | No
     return hashlib.sha256(_dumps(ident, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _load_average():
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except OSError:                              # a platform without one
-        return None
-
-
 class Checkpoint:
     """The finished points of one (experiment, size, key) under ``out/.checkpoints``."""
 
@@ -172,7 +166,7 @@ class Checkpoint:
             return record["values"]
         values = compute()
         record = {"label": label, "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                  "host": socket.gethostname(), "load_average": _load_average(),
+                  "host": socket.gethostname(), "load_average": load_average(),
                   "values": values}
         text = _dumps(record)
         with io.atomic_path(path) as tmp:

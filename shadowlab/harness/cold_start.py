@@ -92,7 +92,7 @@ def cold_start(config_path: str | None = None, overrides=(), repeats: int = 3,
     from ..config import load_config
     from ..core import io
     from ..methods import light_problem
-    from .bench import machine_record, machine_state
+    from ..core.machine import machine_record, machine_state
 
     config = load_config(config_path, list(overrides))       # refuse a bad config first
     scene_light = config.views(config.build_scene())[0].light

@@ -178,7 +178,7 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
     out = out or root / "figures"
     checkpoint = checkpoints.Checkpoint(out, name, size,
                                         checkpoints.run_key(name, size, cfg, path), fresh)
-    from .bench import machine_record, machine_state
+    from ..core.machine import machine_record, machine_state
 
     before = machine_state()
     t0 = time.perf_counter()

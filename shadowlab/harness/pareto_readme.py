@@ -52,7 +52,7 @@ def _embree_at(row: dict, points: list[dict]) -> str:
 
 
 def machine_sentence(data: dict) -> str:
-    """What the JSON's ``machine`` record (``harness.bench.machine_record``, written by
+    """What the JSON's ``machine`` record (``core.machine.machine_record``, written by
     ``shadowlab figures``) says of the load the timings were taken under."""
     m = data.get("machine")
     if not m:

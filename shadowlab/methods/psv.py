@@ -536,8 +536,9 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
             src = (points, scale, key)
         else:
             lane_id = np.asarray(lane_order, np.intp)
-            if lane_id.shape != (s_count,) or not np.array_equal(
-                    np.sort(lane_id), np.arange(s_count)):
+            if lane_id.shape != (s_count,) or (s_count and (
+                    lane_id.min() < 0 or lane_id.max() >= s_count
+                    or np.bincount(lane_id, minlength=s_count).max() != 1)):
                 raise ValueError(f"lane_order must be a permutation of the {s_count} "
                                  f"points; got shape {lane_id.shape}")
             src = (points[lane_id], scale[lane_id], key[lane_id])
