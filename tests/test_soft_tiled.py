@@ -186,6 +186,90 @@ def test_deferred_rasterization_is_bit_identical(name, sphere, projection):
     assert w["raster_lanes"] > 2 * e["raster_lanes"]
 
 
+def _smallest_ball(tri):
+    """Plain loop: the smallest ball holding the 3 points (a pair's diameter ball when it
+    holds the third point, else the circumscribed ball), as (centre, radius)."""
+    best = None
+    for i in range(3):
+        for j in range(i + 1, 3):
+            c = (tri[i] + tri[j]) / 2
+            r = np.linalg.norm(tri[i] - c)
+            if all(np.linalg.norm(p - c) <= r * (1 + 1e-12) + 1e-300 for p in tri):
+                if best is None or r < best[1]:
+                    best = (c, r)
+    if best is None:
+        a, b, c = tri
+        # the circumcentre solves |x - a| = |x - b| = |x - c| in the triangle's plane
+        m = np.array([b - a, c - a, np.cross(b - a, c - a)])
+        rhs = np.array([(b @ b - a @ a) / 2, (c @ c - a @ a) / 2, np.cross(b - a, c - a) @ a])
+        x = np.linalg.solve(m, rhs)
+        best = (x, np.linalg.norm(a - x))
+    return best
+
+
+def test_padded_spheres_hold_their_triangle_in_float32_and_are_smallest():
+    from shadowlab.methods.soft_tiled import padded_spheres
+    rng = np.random.default_rng(3)
+    tris = [rng.normal(size=(3, 3)) * 10 ** rng.uniform(-3, 2) + rng.normal(size=3) * 10 ** k
+            for k in (0, 3, 5) for _ in range(200)]
+    tris += [np.array([[0, 0, 0], [1, 0, 0], [3, 0, 0]], float),          # collinear
+             np.array([[1, 2, 3]] * 3, float),                             # one point
+             np.array([[0, 0, 0], [1, 0, 0], [0.5, 0.01, 0]], float)]      # obtuse
+    tris = np.asarray(tris)
+    spheres = padded_spheres(tris)
+    for tri, sph in zip(tris, spheres):
+        centre32, r32 = sph[:3].astype(np.float32), np.float32(sph[3])
+        far = np.linalg.norm(tri - centre32.astype(float), axis=1).max()
+        assert far <= float(r32), (tri, sph)
+        _, r_min = _smallest_ball(tri)
+        assert sph[3] <= r_min * (1 + 1e-5) + 1e-5 * np.abs(tri).max(), (tri, sph, r_min)
+
+
+@pytest.mark.parametrize("name,sphere,precision", [("fuzzy", True, "float32"),
+                                                   ("fuzzy", True, "float64"),
+                                                   ("terrain", False, "float32")])
+def test_sphere_record_is_bit_identical(name, sphere, precision):
+    """record="sphere" (bounding sphere against the pixel's light cone, the exact quick
+    reject moved into the flush) and record="both" (both tests in the record pass) give
+    the visibility of record="exact" bit for bit, with overflowing tiles. They visit the
+    same pairs; the sphere record queues a different set and rasterizes those passing
+    both tests (the cone is tighter than the quick reject's projected box, so some
+    pairs the exact record queues are dropped: they cover no disk cell)."""
+    scene, gbuf, light, _ = _case(name, sphere)
+    common = dict(FAST, face_cull="none", capacity=100, precision=precision)
+    exact = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", **common)
+    cone = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", record="sphere", **common)
+    assert exact.options["record"] == "exact"            # the default
+    assert np.array_equal(exact.lit, cone.lit)
+    assert ((exact.lit > 0) & (exact.lit < 1)).any() and exact.counters["overflow_tiles"] > 0
+    e, c = exact.counters, cone.counters
+    assert np.array_equal(e["tests_per_pixel"], c["tests_per_pixel"])
+    assert e["recorded_pairs"] == e["rasterized_triangles"]
+    assert c["recorded_pairs"] >= c["rasterized_triangles"] > 0
+    assert e["recorded_pairs"] >= c["rasterized_triangles"]
+    assert (c["rasterized_per_pixel"] <= e["rasterized_per_pixel"]).all()
+    assert (c["near_clamp_per_pixel"] <= e["near_clamp_per_pixel"]).all()
+    if precision == "float32" and sphere:
+        # both tests in the record pass: the same pairs as the sphere record's flush gate
+        both = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", record="both",
+                                  **common)
+        b = both.counters
+        assert np.array_equal(both.lit, exact.lit)
+        assert b["recorded_pairs"] == b["rasterized_triangles"]
+        for key in ("rasterized_per_pixel", "near_clamp_per_pixel", "tests_per_pixel"):
+            assert np.array_equal(b[key], c[key]), key
+
+
+def test_sphere_record_needs_the_homogeneous_projection():
+    scene, gbuf, light, _ = _case("terrain")
+    with pytest.raises(sl.MethodError, match="record='sphere' needs projection='homogeneous'"):
+        sl.compute_shadows(scene, gbuf, light, method="soft_tiled", record="sphere",
+                           preset="paper", **FAST)
+    with pytest.raises(sl.MethodError, match="record='sphere' needs .* defer=True"):
+        sl.compute_shadows(scene, gbuf, light, method="soft_tiled", record="sphere",
+                           defer=False, **FAST)
+
+
 def test_sphere_light_large_errors_only_in_overflowing_tiles():
     """The fuzzy defect (pixels off by up to 1 at 1024x1024): truncated tile lists. With
     the exact variant every pixel off the reference by more than the sampling noise lies

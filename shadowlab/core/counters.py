@@ -162,6 +162,10 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("raster_lanes", "int", "pixel lanes the vectorized rasterizer executed: the sum "
             "over its steps of the lanes each step ran on (deferred with compact: the flush "
             "waves' lanes; rasterized_triangles of them did work)"),
+    Counter("recorded_pairs", "int", "pixel x triangle pairs the record pass queued for the "
+            "rasterizer: those passing the exact quick reject (= rasterized_triangles), or "
+            "with record='sphere' those whose bounding sphere meets the pixel's light cone "
+            "(the flush then runs the exact quick reject on each)"),
     Counter("cas_failures", "int", "reference kernels: compare-and-swap operations that lost a "
             "race (the slot was taken by another thread first); 0 in a serial schedule"),
 ]}

@@ -41,7 +41,9 @@ shape), vectorized over (tiles x 256 pixels). With ``defer`` (default) a batch f
 only the per-pixel quick reject over its lists, recording the passing entries as bits,
 then rasterizes just those (per round of 256 entries; with ``compact`` each step runs only
 on the lanes with pairs left, in waves of halving static size); a pixel whose grid is
-empty stops. See docs/soft_tiled.md.
+empty stops. Option ``record`` picks the record pass's test: the quick reject, the
+triangle's bounding sphere against the pixel's light cone (the flush then runs the quick
+reject), or both. See docs/soft_tiled.md.
 """
 
 from __future__ import annotations
@@ -73,12 +75,18 @@ from ..core.timing import StageTimer
 from ..structures import sun_disk as sd
 from ..core.capacity import bucket
 from ..core.frame import precision_mode
+from .interface import MethodError
 from .registry import Option, register
 from ..core.result import ShadowResult
 
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
 DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)
 MIN_FLUSH_LANES = 512   # compact flush: the smallest wave (lanes); waves halve
+#: record="sphere": the kernel widens each bounding sphere by this fraction of the
+#: centre's light-frame offset (|x| + |y| + |z|), which covers the float32 rounding of the
+#: offset, its rotation into the light frame and the cone's sine and cosine (each a few
+#: units of 6e-8 of that offset); the host adds the rounding of the centre itself
+SPHERE_REL_PAD = 1e-5
 
 
 # ------------------------------------------------------------------ clusters (per scene)
@@ -144,6 +152,37 @@ def pixel_frames(pos, nrm, light: SphereLight, disk_scale: str):
     return frame, s, z_light, sin_a
 
 
+def padded_spheres(tri: np.ndarray) -> np.ndarray:
+    """float64 [n, 4]: the smallest bounding sphere of each triangle [n, 3, 3] (centre,
+    radius), the radius widened by 1e-6 of (radius + |centre|) so that it still encloses
+    the triangle after the centre is rounded to float32 (half a unit, 6e-8, of its
+    largest coordinate). The smallest sphere: the circumsphere when the triangle is
+    acute, else the sphere on its longest edge."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac = b - a, c - a
+    n = np.cross(ab, ac)
+    nn = np.einsum("ij,ij->i", n, n)
+    # circumcentre a + (n x (|ac|^2 ab - |ab|^2 ac)) / (2 |n|^2), where n != 0
+    num = np.cross(n, np.einsum("ij,ij->i", ac, ac)[:, None] * ab
+                   - np.einsum("ij,ij->i", ab, ab)[:, None] * ac)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        circ = a + num / (2 * nn)[:, None]
+    edges = np.stack([b - a, c - b, a - c], 1)                   # [n, 3, 3]
+    lens = np.einsum("ijk,ijk->ij", edges, edges)
+    longest = np.argmax(lens, 1)
+    mids = np.stack([(a + b) / 2, (b + c) / 2, (c + a) / 2], 1)
+    mid = mids[np.arange(len(tri)), longest]
+    # obtuse or right (or degenerate): the longest edge's ball holds the third vertex
+    opposite = tri[np.arange(len(tri)), (longest + 2) % 3]
+    on_edge = (np.einsum("ij,ij->i", opposite - mid, opposite - mid)
+               <= lens[np.arange(len(tri)), longest] / 4) | ~(nn > 0)
+    centre = np.where(on_edge[:, None], mid, circ)
+    radius = np.sqrt(np.max(np.einsum("ijk,ijk->ij", tri - centre[:, None], tri - centre[:, None]),
+                            1))
+    radius += 1e-6 * (radius + np.abs(centre).max(1) * math.sqrt(3))
+    return np.concatenate([centre, radius[:, None]], 1)
+
+
 def frustum_planes(camera, zmin: float, zmax: float) -> np.ndarray:
     """float64 [6, 4]: inside where n . x + d >= 0 (sides, near at zmin, far at zmax)."""
     right, up, back = camera.basis()
@@ -164,28 +203,32 @@ def frustum_planes(camera, zmin: float, zmax: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=None)
 def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, horizon: bool,
-                 mode: str, defer: bool = True, compact: bool = True):
+                 mode: str, defer: bool = True, compact: bool = True, record: str = "exact"):
     g = sd.grid(grid_name)
     disk = [np.uint32(wd) for wd in g.disk_mask()]
     defer = defer and mode == "bitmask"
     words_per_round = DEFER_WORDS
+    record = record if defer else "exact"
 
     @jax.jit
-    def run(tiles, offsets, counts, trips, pix, tri, entries, entry_half, eps):
+    def run(tiles, offsets, counts, trips, pix, tri, spheres, entries, entry_half, eps):
         """Visibility of the pixels of ``tiles`` [G].
 
         pix: per-tile pixel arrays, component axis first: pos [3, Nt, 256], frame
-        [9, Nt, 256] (rows e1, e2, w), nrm [3, Nt, 256] (light frame), s, zl [Nt, 256],
-        half [Nt, 256] int32, rel [Nt, 256] bool. tri [9, Tg] vertex coordinates;
-        entries/entry_half [L]: the flat tile lists (tile t's at
-        offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256], the
-        counts of tests, rasterized and near-clamp triangles [G, 256] (int32) and the
+        [9, Nt, 256] (rows e1, e2, w), nrm [3, Nt, 256] (light frame), s, zl, and the
+        sine and cosine of the light's angular radius sa, ca [Nt, 256], half [Nt, 256]
+        int32, rel [Nt, 256] bool. tri [9, Tg] vertex coordinates; spheres [4, Tg] the
+        triangles' padded bounding spheres (centre, radius; read with
+        ``record="sphere"``); entries/entry_half [L]: the flat tile lists (tile t's at
+        offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256], the counts of
+        tests, rasterized, near-clamp and recorded pairs [G, 256] (int32) and the
         rasterizer lanes executed (int32 []: steps x lanes, summed over the steps).
         """
         pos = [pix["pos"][i][tiles] for i in range(3)]              # [G, 256] each
         fr = [pix["frame"][i][tiles] for i in range(9)]
         nrm = tuple(pix["nrm"][i][tiles] for i in range(3))
         s, zl = pix["s"][tiles], pix["zl"][tiles]
+        sin_a, cos_a = pix["sa"][tiles], pix["ca"][tiles]
         phalf, rel = pix["half"][tiles], pix["rel"][tiles]
         dtype = s.dtype
         shape = s.shape
@@ -207,6 +250,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
 
         # the pixels' own data; the flush runs on lanes gathered from it (same keys)
         px_all = {"pos": pos, "fr": fr, "nrm": nrm, "s": s, "zl": zl}
+        if record == "sphere":
+            px_all.update(sa=sin_a, ca=cos_a)
 
         def light_frame(vx, px):
             """Vertices (9 arrays, broadcastable to the lanes of ``px``) -> d: 3
@@ -224,10 +269,12 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                  for v in range(3)]
             return [q[v][0] for v in range(3)], [q[v][1] for v in range(3)]
 
-        def quick_reject(d, qx, qy):
-            """bool [G, 256]: the pair passes the per-pixel quick reject; near: clamp acts."""
+        def quick_reject(d, qx, qy, px):
+            """bool (lanes of ``px``): the pair passes the per-pixel quick reject; near:
+            the clamp acts."""
+            s, zl = px["s"], px["zl"]
             z = [d[v][2] for v in range(3)]
-            hgt = [sd._dot(d[v], nrm) for v in range(3)]
+            hgt = [sd._dot(d[v], px["nrm"]) for v in range(3)]
             quick = ~((z[0] <= 0) & (z[1] <= 0) & (z[2] <= 0))
             quick &= ~((hgt[0] <= eps) & (hgt[1] <= eps) & (hgt[2] <= eps))
             if sphere:
@@ -256,16 +303,39 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                                                       px["zl"] if sphere else None, zr)
             return sd.pack_list(sd.polygon_keep_list(edges, g, mask & ok, zr), g)
 
-        def raster_pair(e, mask, px):
+        def raster_pair(e, mask, px, gate=False):
             """Keep words of triangle e (per lane: [G, 256], or [n] lanes of the flush)
             where mask; ``px``: the lanes' pixel data. Every path goes through here with
             per-lane vertex gathers, so they compile to the same arithmetic: XLA
             contracts a * b + c to an FMA within a fusion, and a differently fused copy
-            can round a cell centre on an edge the other way."""
+            can round a cell centre on an edge the other way. With ``gate`` the exact
+            quick reject runs here too (``record="sphere"``: the record pass ran only the
+            sphere test); returns (keep words, rasterized mask, near-clamp mask)."""
             v = tri_rows[e]                         # [..., 9]: one gather of 9 floats
             d = light_frame([v[..., i] for i in range(9)], px)
             qx, qy = projected(d, px)
-            return keep_words(d, qx, qy, mask, px)
+            if not gate:
+                return keep_words(d, qx, qy, mask, px), mask, mask
+            quick, near = quick_reject(d, qx, qy, px)
+            mask = mask & quick
+            return keep_words(d, qx, qy, mask, px), mask, mask & near
+
+        def sphere_passes(e):
+            """bool [G, 256]: triangle e's (per pixel [G, 1]) bounding sphere meets the
+            pixel's light cone, above its tangent plane and before the light (the
+            ``record="sphere"`` test: conservative against the exact quick reject with
+            the homogeneous projection; the radius carries a float32 pad)."""
+            c = [spheres[i][e] for i in range(4)]
+            dv = [c[i] - pos[i] for i in range(3)]
+            dl = [dv[0] * fr[3 * j] + dv[1] * fr[3 * j + 1] + dv[2] * fr[3 * j + 2]
+                  for j in range(3)]
+            r = c[3] + SPHERE_REL_PAD * (jnp.abs(dl[0]) + jnp.abs(dl[1]) + jnp.abs(dl[2]))
+            perp = jnp.sqrt(dl[0] * dl[0] + dl[1] * dl[1])
+            hgt = dl[0] * nrm[0] + dl[1] * nrm[1] + dl[2] * nrm[2]
+            ok = (perp * cos_a - dl[2] * sin_a <= r) & (dl[2] + r > 0) & (hgt + r > eps)
+            if sphere:
+                ok &= dl[2] - r < zl
+            return ok
 
         def chunk_entries(j):
             """The chunk's list entries: live [G, K], triangle [G, K], half bits [G, K]."""
@@ -274,32 +344,37 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             idx = jnp.where(live, offsets[:, None] + slot[None, :], 0)
             return live, entries[idx], entry_half[idx]
 
-        def visit(live, ent, eh, k, alive):
-            """Entry k of the chunk on every pixel: geometry, act and use [G, 256]."""
-            in_half = ((eh[:, k, None] >> phalf) & 1) == 1                  # [G, 256]
-            # no skip of the pixel's own triangle by index: ``gbuf.triangle`` numbers
-            # the triangles of the scene the G-buffer was rendered from, not of
-            # ``scene`` (a caster-culled subset renumbers them, and the skip then hit
-            # a true occluder); the own triangle (and any coplanar one) fails the
-            # quick reject's height test, as in the reference
-            act = live[:, k, None] & rel & in_half & alive
-            d = light_frame([tri[i][ent[:, k], None] for i in range(9)], px_all)
-            qx, qy = projected(d, px_all)
-            quick, near = quick_reject(d, qx, qy)
-            return d, qx, qy, act, act & quick, near
-
-        def chunk_visits(j, alive, counts):
+        def chunk_visits(j, alive, counts, test="exact"):
             """Visit the entries of chunk j in order, lazily: yields (k, ent, qx, qy, use,
-            counts) per entry k, counts = (tests, rasterized, near clamps) int32 [G, 256]
-            with entry k added (``use``: it passed the quick reject)."""
+            counts) per entry k, counts = (tests, rasterized, near clamps, recorded)
+            int32 [G, 256] with entry k added. ``use``: it passed ``test``, the exact
+            quick reject (then also counted as rasterized) or, with "sphere", the
+            bounding-sphere test (qx, qy are then None)."""
             live, ent, eh = chunk_entries(j)
-            tests, rast, clamp = counts
+            tests, rast, clamp, rec = counts
             for k in range(chunk):
-                _, qx, qy, act, use, near = visit(live, ent, eh, k, alive)
+                in_half = ((eh[:, k, None] >> phalf) & 1) == 1              # [G, 256]
+                # no skip of the pixel's own triangle by index: ``gbuf.triangle`` numbers
+                # the triangles of the scene the G-buffer was rendered from, not of
+                # ``scene`` (a caster-culled subset renumbers them, and the skip then hit
+                # a true occluder); the own triangle (and any coplanar one) fails the
+                # quick reject's height test, as in the reference
+                act = live[:, k, None] & rel & in_half & alive
                 tests = tests + act.astype(jnp.int32)
-                rast = rast + use.astype(jnp.int32)
-                clamp = clamp + (use & near).astype(jnp.int32)
-                yield k, ent, qx, qy, use, (tests, rast, clamp)
+                if test == "sphere":
+                    qx = qy = None
+                    use = act & sphere_passes(ent[:, k, None])
+                else:
+                    d = light_frame([tri[i][ent[:, k], None] for i in range(9)], px_all)
+                    qx, qy = projected(d, px_all)
+                    quick, near = quick_reject(d, qx, qy, px_all)
+                    use = act & quick
+                    if test == "both":
+                        use &= sphere_passes(ent[:, k, None])
+                    rast = rast + use.astype(jnp.int32)
+                    clamp = clamp + (use & near).astype(jnp.int32)
+                rec = rec + use.astype(jnp.int32)
+                yield k, ent, qx, qy, use, (tests, rast, clamp, rec)
 
         if not defer:
             # every visited pair is rasterized; the quick reject only gates the result
@@ -312,19 +387,19 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                         area = sd.overlap_area(pts) / math.pi
                         blocked = blocked + jnp.where(use, area, 0.0).astype(dtype)
                         continue
-                    keep = raster_pair(jnp.broadcast_to(ent[:, k, None], shape), use, px_all)
+                    keep = raster_pair(jnp.broadcast_to(ent[:, k, None], shape), use, px_all)[0]
                     words = [wd & kp for wd, kp in zip(words, keep)]
                 return (words, blocked) + counts
 
-            words, blocked, tests, rast, clamp = jax.lax.fori_loop(
-                0, trips, body, (words0, blocked0, zero, zero, zero))
+            words, blocked, tests, rast, clamp, rec = jax.lax.fori_loop(
+                0, trips, body, (words0, blocked0, zero, zero, zero, zero))
             if mode == "overlap":
                 vis = jnp.clip(1.0 - blocked, 0.0, 1.0)
             else:
                 vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
             # every step rasterized on every lane of the batch
             lanes = (trips * chunk * rel.size).astype(jnp.int32)
-            return jnp.where(rel, vis, 0.0), tests, rast, clamp, lanes
+            return jnp.where(rel, vis, 0.0), tests, rast, clamp, rec, lanes
 
         # Deferred: a first pass over the list only runs the per-pixel quick reject and
         # records the entries passing it as bits (bit b of word w: list slot 32 w + b of
@@ -343,25 +418,25 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             """Trailing zeros of uint32 x (32 for x = 0)."""
             return jax.lax.population_count((x & (~x + one)) - one).astype(jnp.int32)
 
-        def record(wi, state):
-            """Quick-reject the 32 slots of word wi (global); store their bits."""
-            base, tests, rast, clamp, bits, summary, alive = state
+        def record_word(wi, state):
+            """Run the record test on the 32 slots of word wi (global); store their bits."""
+            base, counts, bits, summary, alive = state
 
             def step(st, carry):
-                cur, counts = carry[0], carry[1:]
+                cur, counts = carry
                 j = wi * per_word + st
-                for k, _, _, _, use, counts in chunk_visits(j, alive, counts):
+                for k, _, _, _, use, counts in chunk_visits(j, alive, counts, record):
                     shift = (st * chunk + k).astype(jnp.uint32)
                     cur = cur | jax.lax.shift_left(use.astype(jnp.uint32), shift)
-                return (cur,) + counts
+                return cur, counts
 
-            cur, tests, rast, clamp = jax.lax.fori_loop(
-                0, per_word, step, (jnp.zeros(shape, jnp.uint32), tests, rast, clamp))
+            cur, counts = jax.lax.fori_loop(0, per_word, step,
+                                            (jnp.zeros(shape, jnp.uint32), counts))
             local = wi - base
             bits = jnp.where(word_idx == local, cur[None], bits)
             summary = summary | jax.lax.shift_left((cur != 0).astype(jnp.uint32),
                                                    local.astype(jnp.uint32))
-            return base, tests, rast, clamp, bits, summary, alive
+            return base, counts, bits, summary, alive
 
         def flush(words, base, bits, summary):
             """Rasterize every recorded pair of the round (base: its first word).
@@ -374,7 +449,10 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             largest count), the last wave until the largest. No lane stops before its
             pairs are done, and a lane's steps do not depend on the others (the grid is
             an AND of its pairs' keep words), so the words are those of the full run.
-            Returns the words and the lanes executed (steps x lanes, int32 [])."""
+            With ``record="sphere"`` each popped pair first runs the exact quick reject.
+            Returns the words, the rasterized and near-clamp counts of the flush [G, 256]
+            (zero unless ``record="sphere"``) and the lanes executed (steps x lanes,
+            int32 [])."""
             todo = sum(jax.lax.population_count(bits[w]).astype(jnp.int32)
                        for w in range(words_per_round))
             n = todo.size
@@ -388,7 +466,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                     "px": jax.tree_util.tree_map(lambda a: lane_of(jnp.broadcast_to(a, shape)),
                                                  px_all)}
             state = ([lane_of(wd) for wd in words], lane_of(summary),
-                     jnp.zeros(n, jnp.uint32), jnp.zeros(n, jnp.int32))
+                     jnp.zeros(n, jnp.uint32), jnp.zeros(n, jnp.int32),
+                     jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32))
             todo = lane_of(todo)
             if compact:
                 order = jnp.argsort(-todo, stable=True)
@@ -401,7 +480,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
 
             def step_on(lanes):
                 def step(_, carry):
-                    words, summary, cur, cur_w = carry
+                    words, summary, cur, cur_w, rast, clamp = carry
                     need = cur == 0
                     w_new = jnp.minimum(ctz(summary), words_per_round - 1)
                     loaded = jnp.take_along_axis(lanes["bits"], w_new[None], 0)[0]
@@ -412,42 +491,52 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                     slot = (base + cur_w) * 32 + ctz(cur)
                     cur = cur & (cur - one)
                     idx = jnp.where(has, lanes["off"] + slot, 0)
-                    keep = raster_pair(entries[idx], has, lanes["px"])
-                    return [wd & kp for wd, kp in zip(words, keep)], summary, cur, cur_w
+                    keep, used, near = raster_pair(entries[idx], has, lanes["px"],
+                                                   gate=record == "sphere")
+                    if record == "sphere":
+                        rast = rast + used.astype(jnp.int32)
+                        clamp = clamp + near.astype(jnp.int32)
+                    return ([wd & kp for wd, kp in zip(words, keep)], summary, cur, cur_w,
+                            rast, clamp)
                 return step
 
             out = state[0]
+            out_counts = state[4:]
             start, executed = jnp.int32(0), jnp.int32(0)
             for cap, end in zip(caps, ends):
                 lanes, state = jax.tree_util.tree_map(lambda a: a[..., :cap], (data, state))
                 state = jax.lax.fori_loop(start, end, step_on(lanes), state)
                 out = [o.at[:cap].set(wd) for o, wd in zip(out, state[0])]
+                out_counts = [o.at[:cap].set(c) for o, c in zip(out_counts, state[4:])]
                 executed = executed + cap * jnp.maximum(end - start, 0)
                 start = jnp.maximum(start, end)
             if compact:
-                out = [jnp.zeros_like(o).at[order].set(o) for o in out]
-            return [o.reshape(shape) for o in out], executed
+                out, out_counts = [[jnp.zeros_like(o).at[order].set(o) for o in group]
+                                   for group in (out, out_counts)]
+            return ([o.reshape(shape) for o in out], [c.reshape(shape) for c in out_counts],
+                    executed)
 
         def round_(state):
-            base, words, tests, rast, clamp, alive, steps = state
+            base, words, counts, alive, steps = state
             end = jnp.minimum(base + words_per_round, n_words)
-            _, tests, rast, clamp, bits, summary, _ = jax.lax.fori_loop(
-                base, end, record,
-                (base, tests, rast, clamp, jnp.zeros((words_per_round,) + shape, jnp.uint32),
+            _, counts, bits, summary, _ = jax.lax.fori_loop(
+                base, end, record_word,
+                (base, counts, jnp.zeros((words_per_round,) + shape, jnp.uint32),
                  jnp.zeros(shape, jnp.uint32), alive))
-            words, executed = flush(words, base, bits, summary)
+            words, (rast, clamp), executed = flush(words, base, bits, summary)
+            tests, rast0, clamp0, rec = counts
             alive = functools.reduce(jnp.logical_or, [wd != 0 for wd in words])
-            return end, words, tests, rast, clamp, alive, steps + executed
+            return end, words, (tests, rast0 + rast, clamp0 + clamp, rec), alive, steps + executed
 
         def more(state):
-            return (state[0] < n_words) & jnp.any(state[5] & rel)
+            return (state[0] < n_words) & jnp.any(state[3] & rel)
 
         alive0 = functools.reduce(jnp.logical_or, [wd != 0 for wd in words0])
-        state = jax.lax.while_loop(more, round_, (jnp.int32(0), words0, zero, zero, zero,
+        state = jax.lax.while_loop(more, round_, (jnp.int32(0), words0, (zero,) * 4,
                                                   alive0, jnp.int32(0)))
-        _, words, tests, rast, clamp, _, lanes = state
+        _, words, (tests, rast, clamp, rec), _, lanes = state
         vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
-        return jnp.where(rel, vis, 0.0), tests, rast, clamp, lanes
+        return jnp.where(rel, vis, 0.0), tests, rast, clamp, rec, lanes
 
     return run
 
@@ -572,12 +661,18 @@ def soft_tiled_impl(scene, gbuf, light, **kwargs):
 
 def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, shadow_eps,
                 grid, rotate, seed, projection, disk_scale, horizon, chunk, mode, method,
-                defer=False, compact=True):
+                defer=False, compact=True, record="exact"):
     """(visibility float [H, W], counters) of :func:`soft_tiled_impl`; stages into
     ``timer``."""
     cam = gbuf.camera
     h, w = gbuf.shape
     eps = shadow_epsilon(scene, shadow_eps)
+    if record != "exact" and (projection != "homogeneous" or not defer):
+        raise MethodError(f"method {method!r}: option record={record!r} needs "
+                          f"projection='homogeneous' and defer=True (got projection="
+                          f"{projection!r}, defer={defer!r}): the paper projection's clamp "
+                          "and abs() can bring a triangle outside the light cone into the "
+                          "disk, so the cone test would not be conservative against it")
     with timer.stage("setup"):
         tri_all = scene.triangles                                # float64 [T, 3, 3]
         n_tri = len(tri_all)
@@ -627,7 +722,9 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             pix = {"pos": np.moveaxis(pos, -1, 0),
                    "frame": np.moveaxis(frame.reshape(n_tiles, TILE * TILE, 9), -1, 0),
                    "nrm": np.moveaxis(nrm_l, -1, 0), "s": s,
-                   "zl": np.where(np.isfinite(z_light), z_light, 0.0)}
+                   "zl": np.where(np.isfinite(z_light), z_light, 0.0),
+                   "sa": sin_a.reshape(n_tiles, -1),
+                   "ca": np.sqrt(np.maximum(1 - sin_a ** 2, 0.0)).reshape(n_tiles, -1)}
             pix = {k: jnp.asarray(np.ascontiguousarray(v, dtype)) for k, v in pix.items()}
             pix["half"] = jnp.asarray(half.astype(np.int32))
             pix["rel"] = jnp.asarray(relevant)
@@ -639,15 +736,19 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             ehalf = np.zeros(L, np.int32)
             ehalf[:len(tri_g)] = lists.half_bits
             tri_soa = np.ascontiguousarray(tri_g_arr.reshape(-1, 9).T)
-            args_common = (pix, jnp.asarray(tri_soa), jnp.asarray(ent),
+            spheres = np.zeros((4, len(tri_g_arr)), dtype)
+            if record != "exact":
+                spheres[:, :n_gather] = padded_spheres(tri_all[gathered]).T
+            args_common = (pix, jnp.asarray(tri_soa), jnp.asarray(spheres), jnp.asarray(ent),
                            jnp.asarray(ehalf), jnp.asarray(dtype(eps)))
             kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode, defer,
-                                  compact)
+                                  compact, record)
             nchunks = -(-counts // chunk)
             vis = np.zeros((n_tiles, TILE * TILE))
             tests = np.zeros((n_tiles, TILE * TILE), np.int64)
             rast = np.zeros((n_tiles, TILE * TILE), np.int64)
             clamped = np.zeros((n_tiles, TILE * TILE), np.int64)
+            recorded = 0
             raster_lanes = 0
             # tiles sorted by chunk count, in batches of a fixed size: one compiled shape,
             # and every batch loops only as long as its longest list
@@ -663,13 +764,15 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             cnts = np.zeros(batch, np.int32)
             cnts[: len(members_t)] = counts[members_t]
             trips = jnp.asarray(int(nchunks[members_t].max()), jnp.int32)
-            v, te, ra, cl, st = timer.run("eval", kernel, jnp.asarray(tiles), jnp.asarray(offs),
-                                      jnp.asarray(cnts), trips, *args_common)
+            v, te, ra, cl, rc, st = timer.run("eval", kernel, jnp.asarray(tiles),
+                                              jnp.asarray(offs), jnp.asarray(cnts), trips,
+                                              *args_common)
             n = len(members_t)
             vis[members_t] = np.asarray(v)[:n]
             tests[members_t] = np.asarray(te)[:n]
             rast[members_t] = np.asarray(ra)[:n]
             clamped[members_t] = np.asarray(cl)[:n]
+            recorded += int(np.asarray(rc)[:n].sum())
             raster_lanes += int(st)
 
     with timer.stage("output"):
@@ -709,6 +812,7 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
         "rasterized_per_pixel": to_image(rast),
         "near_clamp_per_pixel": to_image(clamped),
         "raster_lanes": raster_lanes,
+        "recorded_pairs": recorded,
     }
     return vis_img, counters
 
@@ -773,7 +877,7 @@ SOFT_DECLARATION = {
                  "tile_triangles_max", "tile_list_lengths", "tile_triangles_per_pixel",
                  "overflow_tiles", "overflow_tiles_per_pixel", "dropped_entries",
                  "rasterized_triangles", "rasterized_per_pixel", "near_clamp_per_pixel",
-                 "raster_lanes")}
+                 "raster_lanes", "recorded_pairs")}
 
 
 @register("soft_tiled", **SOFT_DECLARATION,
@@ -794,6 +898,14 @@ SOFT_DECLARATION = {
                                    "grid is empty; False = rasterize every visited pair "
                                    "and gate the result (same visibility)",
                                    allowed=(True, False)),
+                   "record": Option("exact", "defer: the record pass's test, the "
+                                    "per-pixel quick reject ('exact', the paper's) or the "
+                                    "triangle's bounding sphere against the pixel's light "
+                                    "cone ('sphere': cheaper per pair, looser near the "
+                                    "receiver; the flush then runs the quick reject on the "
+                                    "pairs it pops; same visibility; needs "
+                                    "projection='homogeneous' and defer)",
+                                    allowed=("exact", "sphere", "both")),
                    "compact": Option(True, "defer: each flush step runs only on the lanes "
                                      "with recorded pairs left (lanes sorted by their pair "
                                      "count, waves of shrinking static size); False = every "
