@@ -4,8 +4,9 @@ and its module-level caches and compiled shapes serve the whole file; every work
 this set-up for itself).
 
 Compilation caches are hermetic: every session gets a fresh temporary folder for JAX's
-persistent cache and Warp's kernel cache and removes it at the end, so the tests never
-read or write the user's caches (``~/.cache/shadowlab``) and every session starts cold.
+persistent cache (shared by the session's xdist workers) and Warp's kernel caches (one per
+process) and removes it at the end, so the tests never read or write the user's caches
+(``~/.cache/shadowlab``) and every session starts cold.
 To keep a warm cache between sessions while iterating, point ``SHADOWLAB_TEST_CACHE`` at
 a folder of your own (it is used for tests only and never removed). Live executables are
 bounded before every test (``shadowlab.core.executables``; docs/xla_map_count.md).
@@ -19,10 +20,24 @@ from pathlib import Path
 import pytest
 
 _KEEP = os.environ.get("SHADOWLAB_TEST_CACHE")
-CACHE_ROOT = Path(_KEEP) if _KEEP else Path(tempfile.mkdtemp(prefix="shadowlab-tests-"))
-# Set before anything compiles; subprocesses started by tests inherit them.
+# The session's folder: made by the first process (pytest itself, or xdist's controller)
+# and inherited by the xdist workers it starts, so a program one worker compiled is read
+# from disk by the others (JAX's cache entries are written atomically, see
+# ``core.jaxcache``). Only the process that made it removes it.
+_SESSION = os.environ.get("SHADOWLAB_TEST_SESSION_CACHE")
+_OWNER = not _KEEP and not _SESSION
+if _KEEP:
+    CACHE_ROOT = Path(_KEEP)
+elif _SESSION:
+    CACHE_ROOT = Path(_SESSION)
+else:
+    CACHE_ROOT = Path(tempfile.mkdtemp(prefix="shadowlab-tests-"))
+    os.environ["SHADOWLAB_TEST_SESSION_CACHE"] = str(CACHE_ROOT)
+# Set before anything compiles; subprocesses started by tests inherit them. Warp's kernel
+# cache stays per process (its module builds are not known to be safe to share).
 os.environ["SHADOWLAB_JAX_CACHE"] = str(CACHE_ROOT / "jax")
-os.environ["SHADOWLAB_WARP_CACHE"] = str(CACHE_ROOT / "warp")
+os.environ["SHADOWLAB_WARP_CACHE"] = str(
+    CACHE_ROOT / f"warp-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}")
 
 from shadowlab.core import executables  # noqa: E402
 from shadowlab.core.jaxcache import enable_compilation_cache  # noqa: E402
@@ -31,7 +46,7 @@ enable_compilation_cache(CACHE_ROOT / "jax")
 
 
 def pytest_unconfigure(config):
-    if not _KEEP:
+    if _OWNER:
         shutil.rmtree(CACHE_ROOT, ignore_errors=True)
 
 
