@@ -24,15 +24,17 @@ _KEEP = os.environ.get("SHADOWLAB_TEST_CACHE")
 # and inherited by the xdist workers it starts, so a program one worker compiled is read
 # from disk by the others (JAX's cache entries are written atomically, see
 # ``core.jaxcache``). Only the process that made it removes it.
-_SESSION = os.environ.get("SHADOWLAB_TEST_SESSION_CACHE")
+_SESSION_VAR = "SHADOWLAB_TEST_SESSION_CACHE"
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER")
+_SESSION = os.environ.get(_SESSION_VAR) if _WORKER else None
 _OWNER = not _KEEP and not _SESSION
 if _KEEP:
     CACHE_ROOT = Path(_KEEP)
 elif _SESSION:
     CACHE_ROOT = Path(_SESSION)
-else:
+else:               # any process but an xdist worker starts a session of its own
     CACHE_ROOT = Path(tempfile.mkdtemp(prefix="shadowlab-tests-"))
-    os.environ["SHADOWLAB_TEST_SESSION_CACHE"] = str(CACHE_ROOT)
+    os.environ[_SESSION_VAR] = str(CACHE_ROOT)
 # Set before anything compiles; subprocesses started by tests inherit them. Warp's kernel
 # cache stays per process (its module builds are not known to be safe to share).
 os.environ["SHADOWLAB_JAX_CACHE"] = str(CACHE_ROOT / "jax")
@@ -48,6 +50,8 @@ enable_compilation_cache(CACHE_ROOT / "jax")
 def pytest_unconfigure(config):
     if _OWNER:
         shutil.rmtree(CACHE_ROOT, ignore_errors=True)
+        if os.environ.get(_SESSION_VAR) == str(CACHE_ROOT):
+            del os.environ[_SESSION_VAR]
 
 
 @pytest.fixture(params=["float32", "float64"])

@@ -133,7 +133,8 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("dropped_entries", "int", "tile list entries beyond the capacity that were not "
             "evaluated (on_overflow='truncate'; those tiles may be wrong)"),
     Counter("rasterized_triangles", "int", "pixel x triangle pairs passing the per-pixel quick "
-            "reject (in front, above the tangent plane, near the disk) and rasterized"),
+            "reject (in front, above the tangent plane, near the disk; with record='sphere' "
+            "or 'both' also the bounding-sphere test) and rasterized"),
     Counter("rasterized_per_pixel", "map", "triangles rasterized (or summed) for each pixel"),
     Counter("near_clamp_per_pixel", "map", "rasterized triangles with a vertex behind the "
             "fragment or closer than the paper's clamp depth (s |z| < 1e-4), where its abs() "
@@ -165,7 +166,8 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("recorded_pairs", "int", "pixel x triangle pairs the record pass queued for the "
             "rasterizer: those passing the exact quick reject (= rasterized_triangles), or "
             "with record='sphere' those whose bounding sphere meets the pixel's light cone "
-            "(the flush then runs the exact quick reject on each)"),
+            "(the flush then runs the exact quick reject on each), with 'both' those "
+            "passing both (= rasterized_triangles)"),
     Counter("cas_failures", "int", "reference kernels: compare-and-swap operations that lost a "
             "race (the slot was taken by another thread first); 0 in a serial schedule"),
 ]}

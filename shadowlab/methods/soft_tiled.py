@@ -131,7 +131,8 @@ def pixel_frames(pos, nrm, light: SphereLight, disk_scale: str):
     Returns:
         frame [n, 3, 3] (rows e1, e2, w; w towards the light's centre), s [n] (disk
         scale: tan or sin of the angular radius), z_light [n] (depth of the silhouette
-        disk's plane along w; inf for a sun), sin_a [n].
+        disk's plane along w; inf for a sun), sin_a [n], cos_a [n] (sine and cosine of
+        the angular radius).
     """
     n = len(pos)
     if light.is_sun:
@@ -149,14 +150,14 @@ def pixel_frames(pos, nrm, light: SphereLight, disk_scale: str):
     s = sin_a / cos_a if disk_scale == "tan" else sin_a
     e1, e2 = _orthonormal(np.asarray(w, float))
     frame = np.stack([e1, e2, w], axis=1)
-    return frame, s, z_light, sin_a
+    return frame, s, z_light, sin_a, cos_a
 
 
 def padded_spheres(tri: np.ndarray) -> np.ndarray:
     """float64 [n, 4]: the smallest bounding sphere of each triangle [n, 3, 3] (centre,
-    radius), the radius widened by 1e-6 of (radius + |centre|) so that it still encloses
-    the triangle after the centre is rounded to float32 (half a unit, 6e-8, of its
-    largest coordinate). The smallest sphere: the circumsphere when the triangle is
+    radius), the radius widened by 1e-6 of (radius + sqrt(3) max|centre_i|) so that it
+    still encloses the triangle after the centre and the vertices are rounded to float32
+    (half a unit, 6e-8, of their largest coordinates). The smallest sphere: the circumsphere when the triangle is
     acute, else the sphere on its longest edge."""
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     ab, ac = b - a, c - a
@@ -181,6 +182,38 @@ def padded_spheres(tri: np.ndarray) -> np.ndarray:
                             1))
     radius += 1e-6 * (radius + np.abs(centre).max(1) * math.sqrt(3))
     return np.concatenate([centre, radius[:, None]], 1)
+
+
+def sphere_meets_cone(ball, pos, frame, nrm, sin_a, cos_a, eps, z_light=None):
+    """The record test of ``record="sphere"``/``"both"`` (array code, any broadcastable
+    shapes): False where the ball certainly misses what a pixel's disk can see, so the
+    pair covers no disk cell with the homogeneous projection.
+
+    Args:
+        ball: 4 arrays (centre x, y, z, radius; world units, frame-local).
+        pos: 3 arrays, the pixel's position; frame: 9 arrays, its light frame (rows e1,
+            e2, w; w towards the light's centre); nrm: 3 arrays, its normal in that
+            frame. sin_a, cos_a: sine and cosine of the light's angular radius a.
+        eps: the receiver bias (height above the tangent plane). z_light: depth of a
+            sphere light's silhouette plane along w (None for a sun).
+    Returns:
+        bool: the ball meets the cone of half-angle a around w from ``pos`` (its
+        centre's distance from the axis times cos a minus its depth times sin a is at
+        most the radius: the cone lies on one side of that line in every plane
+        through the axis), reaches in front of the pixel, above its tangent plane by
+        more than ``eps`` and before the silhouette plane. The radius is widened by
+        ``SPHERE_REL_PAD`` of the centre's light-frame offset for float32 rounding.
+    """
+    dv = [ball[i] - pos[i] for i in range(3)]
+    dl = [dv[0] * frame[3 * j] + dv[1] * frame[3 * j + 1] + dv[2] * frame[3 * j + 2]
+          for j in range(3)]
+    r = ball[3] + SPHERE_REL_PAD * (jnp.abs(dl[0]) + jnp.abs(dl[1]) + jnp.abs(dl[2]))
+    perp = jnp.sqrt(dl[0] * dl[0] + dl[1] * dl[1])
+    hgt = dl[0] * nrm[0] + dl[1] * nrm[1] + dl[2] * nrm[2]
+    ok = (perp * cos_a - dl[2] * sin_a <= r) & (dl[2] + r > 0) & (hgt + r > eps)
+    if z_light is not None:
+        ok &= dl[2] - r < z_light
+    return ok
 
 
 def frustum_planes(camera, zmin: float, zmax: float) -> np.ndarray:
@@ -219,7 +252,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         sine and cosine of the light's angular radius sa, ca [Nt, 256], half [Nt, 256]
         int32, rel [Nt, 256] bool. tri [9, Tg] vertex coordinates; spheres [4, Tg] the
         triangles' padded bounding spheres (centre, radius; read with
-        ``record="sphere"``); entries/entry_half [L]: the flat tile lists (tile t's at
+        ``record="sphere"`` or ``"both"``); entries/entry_half [L]: the flat tile lists
+        (tile t's at
         offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256], the counts of
         tests, rasterized, near-clamp and recorded pairs [G, 256] (int32) and the
         rasterizer lanes executed (int32 []: steps x lanes, summed over the steps).
@@ -250,8 +284,6 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
 
         # the pixels' own data; the flush runs on lanes gathered from it (same keys)
         px_all = {"pos": pos, "fr": fr, "nrm": nrm, "s": s, "zl": zl}
-        if record == "sphere":
-            px_all.update(sa=sin_a, ca=cos_a)
 
         def light_frame(vx, px):
             """Vertices (9 arrays, broadcastable to the lanes of ``px``) -> d: 3
@@ -321,21 +353,10 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             return keep_words(d, qx, qy, mask, px), mask, mask & near
 
         def sphere_passes(e):
-            """bool [G, 256]: triangle e's (per pixel [G, 1]) bounding sphere meets the
-            pixel's light cone, above its tangent plane and before the light (the
-            ``record="sphere"`` test: conservative against the exact quick reject with
-            the homogeneous projection; the radius carries a float32 pad)."""
-            c = [spheres[i][e] for i in range(4)]
-            dv = [c[i] - pos[i] for i in range(3)]
-            dl = [dv[0] * fr[3 * j] + dv[1] * fr[3 * j + 1] + dv[2] * fr[3 * j + 2]
-                  for j in range(3)]
-            r = c[3] + SPHERE_REL_PAD * (jnp.abs(dl[0]) + jnp.abs(dl[1]) + jnp.abs(dl[2]))
-            perp = jnp.sqrt(dl[0] * dl[0] + dl[1] * dl[1])
-            hgt = dl[0] * nrm[0] + dl[1] * nrm[1] + dl[2] * nrm[2]
-            ok = (perp * cos_a - dl[2] * sin_a <= r) & (dl[2] + r > 0) & (hgt + r > eps)
-            if sphere:
-                ok &= dl[2] - r < zl
-            return ok
+            """bool [G, 256]: :func:`sphere_meets_cone` for triangle e (per pixel
+            [G, 1])."""
+            return sphere_meets_cone([spheres[i][e] for i in range(4)], pos, fr, nrm,
+                                     sin_a, cos_a, eps, zl if sphere else None)
 
         def chunk_entries(j):
             """The chunk's list entries: live [G, K], triangle [G, K], half bits [G, K]."""
@@ -347,9 +368,10 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         def chunk_visits(j, alive, counts, test="exact"):
             """Visit the entries of chunk j in order, lazily: yields (k, ent, qx, qy, use,
             counts) per entry k, counts = (tests, rasterized, near clamps, recorded)
-            int32 [G, 256] with entry k added. ``use``: it passed ``test``, the exact
-            quick reject (then also counted as rasterized) or, with "sphere", the
-            bounding-sphere test (qx, qy are then None)."""
+            int32 [G, 256] with entry k added. ``use``: it passed ``test``: "exact", the
+            quick reject (then also counted as rasterized); "sphere", the bounding-sphere
+            test (qx, qy are then None; the flush runs the quick reject); "both", both
+            (counted as rasterized)."""
             live, ent, eh = chunk_entries(j)
             tests, rast, clamp, rec = counts
             for k in range(chunk):
@@ -465,9 +487,11 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                     "off": lane_of(jnp.broadcast_to(offsets[:, None], shape)),
                     "px": jax.tree_util.tree_map(lambda a: lane_of(jnp.broadcast_to(a, shape)),
                                                  px_all)}
+            # the rasterized and near-clamp counts of the flush (sphere record only)
+            gated = record == "sphere"
             state = ([lane_of(wd) for wd in words], lane_of(summary),
                      jnp.zeros(n, jnp.uint32), jnp.zeros(n, jnp.int32),
-                     jnp.zeros(n, jnp.int32), jnp.zeros(n, jnp.int32))
+                     *([jnp.zeros(n, jnp.int32)] * (2 if gated else 0)))
             todo = lane_of(todo)
             if compact:
                 order = jnp.argsort(-todo, stable=True)
@@ -480,7 +504,7 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
 
             def step_on(lanes):
                 def step(_, carry):
-                    words, summary, cur, cur_w, rast, clamp = carry
+                    words, summary, cur, cur_w = carry[:4]
                     need = cur == 0
                     w_new = jnp.minimum(ctz(summary), words_per_round - 1)
                     loaded = jnp.take_along_axis(lanes["bits"], w_new[None], 0)[0]
@@ -491,13 +515,13 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                     slot = (base + cur_w) * 32 + ctz(cur)
                     cur = cur & (cur - one)
                     idx = jnp.where(has, lanes["off"] + slot, 0)
-                    keep, used, near = raster_pair(entries[idx], has, lanes["px"],
-                                                   gate=record == "sphere")
-                    if record == "sphere":
-                        rast = rast + used.astype(jnp.int32)
-                        clamp = clamp + near.astype(jnp.int32)
+                    keep, used, near = raster_pair(entries[idx], has, lanes["px"], gate=gated)
+                    counts = ()
+                    if gated:
+                        counts = (carry[4] + used.astype(jnp.int32),
+                                  carry[5] + near.astype(jnp.int32))
                     return ([wd & kp for wd, kp in zip(words, keep)], summary, cur, cur_w,
-                            rast, clamp)
+                            *counts)
                 return step
 
             out = state[0]
@@ -513,6 +537,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             if compact:
                 out, out_counts = [[jnp.zeros_like(o).at[order].set(o) for o in group]
                                    for group in (out, out_counts)]
+            if not gated:
+                out_counts = [jnp.zeros(n, jnp.int32)] * 2
             return ([o.reshape(shape) for o in out], [c.reshape(shape) for c in out_counts],
                     executed)
 
@@ -668,11 +694,13 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
     h, w = gbuf.shape
     eps = shadow_epsilon(scene, shadow_eps)
     if record != "exact" and (projection != "homogeneous" or not defer):
+        why = ("the paper projection's clamp and abs() can bring a triangle outside the "
+               "light cone into the disk, so the cone test would not be conservative"
+               if projection != "homogeneous" else
+               "the test belongs to the deferred record pass")
         raise MethodError(f"method {method!r}: option record={record!r} needs "
                           f"projection='homogeneous' and defer=True (got projection="
-                          f"{projection!r}, defer={defer!r}): the paper projection's clamp "
-                          "and abs() can bring a triangle outside the light cone into the "
-                          "disk, so the cone test would not be conservative against it")
+                          f"{projection!r}, defer={defer!r}): {why}")
     with timer.stage("setup"):
         tri_all = scene.triangles                                # float64 [T, 3, 3]
         n_tri = len(tri_all)
@@ -684,7 +712,7 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
         nrm = gbuf.normal.reshape(-1, 3)[flat]
         depth = gbuf.depth.reshape(-1)[flat]
         valid = gbuf.valid.reshape(-1)[flat] & inside
-        frame, s, z_light, sin_a = pixel_frames(pos.reshape(-1, 3), nrm.reshape(-1, 3), light,
+        frame, s, z_light, sin_a, cos_a = pixel_frames(pos.reshape(-1, 3), nrm.reshape(-1, 3), light,
                                                 disk_scale)
         frame = frame.reshape(n_tiles, TILE * TILE, 3, 3)
         s = s.reshape(n_tiles, -1)
@@ -724,7 +752,7 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
                    "nrm": np.moveaxis(nrm_l, -1, 0), "s": s,
                    "zl": np.where(np.isfinite(z_light), z_light, 0.0),
                    "sa": sin_a.reshape(n_tiles, -1),
-                   "ca": np.sqrt(np.maximum(1 - sin_a ** 2, 0.0)).reshape(n_tiles, -1)}
+                   "ca": cos_a.reshape(n_tiles, -1)}
             pix = {k: jnp.asarray(np.ascontiguousarray(v, dtype)) for k, v in pix.items()}
             pix["half"] = jnp.asarray(half.astype(np.int32))
             pix["rel"] = jnp.asarray(relevant)
@@ -899,12 +927,13 @@ SOFT_DECLARATION = {
                                    "and gate the result (same visibility)",
                                    allowed=(True, False)),
                    "record": Option("exact", "defer: the record pass's test, the "
-                                    "per-pixel quick reject ('exact', the paper's) or the "
+                                    "per-pixel quick reject ('exact', the paper's), the "
                                     "triangle's bounding sphere against the pixel's light "
                                     "cone ('sphere': cheaper per pair, looser near the "
                                     "receiver; the flush then runs the quick reject on the "
-                                    "pairs it pops; same visibility; needs "
-                                    "projection='homogeneous' and defer)",
+                                    "pairs it pops) or both tests ('both'); same "
+                                    "visibility; 'sphere' and 'both' need "
+                                    "projection='homogeneous' and defer",
                                     allowed=("exact", "sphere", "both")),
                    "compact": Option(True, "defer: each flush step runs only on the lanes "
                                      "with recorded pairs left (lanes sorted by their pair "
