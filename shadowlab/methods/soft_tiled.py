@@ -157,8 +157,8 @@ def padded_spheres(tri: np.ndarray) -> np.ndarray:
     """float64 [n, 4]: the smallest bounding sphere of each triangle [n, 3, 3] (centre,
     radius), the radius widened by 1e-6 of (radius + sqrt(3) max|centre_i|) so that it
     still encloses the triangle after the centre and the vertices are rounded to float32
-    (half a unit, 6e-8, of their largest coordinates). The smallest sphere: the circumsphere when the triangle is
-    acute, else the sphere on its longest edge."""
+    (half a unit, 6e-8, of their largest coordinates). The smallest sphere: the
+    circumsphere when the triangle is acute, else the sphere on its longest edge."""
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     ab, ac = b - a, c - a
     n = np.cross(ab, ac)
@@ -371,9 +371,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             int32 [G, 256] with entry k added. ``use``: it passed ``test``: "exact", the
             quick reject (then also counted as rasterized); "sphere", the bounding-sphere
             test (qx, qy are then None; the flush runs the quick reject; only then is
-            ``recorded`` counted apart: otherwise it equals rasterized, and one more
-            accumulator costs the record pass about 10 %); "both", both (counted as
-            rasterized)."""
+            ``recorded`` counted apart, since otherwise it equals rasterized); "both",
+            both (counted as rasterized)."""
             live, ent, eh = chunk_entries(j)
             tests, rast, clamp, rec = counts
             for k in range(chunk):
