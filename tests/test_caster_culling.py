@@ -175,3 +175,80 @@ def test_receivers_directional_grid_keeps_a_triangle_within_float32_of_a_lone_sa
     assert not cc.behind_receivers(tri, p, light, 1.0).any()
     far = np.array([[[5.0, 5.0, -1.0], [6.0, 5.0, -1.0], [5.0, 6.0, -1.0]]])  # behind, aside
     assert cc.behind_receivers(far, p, light, 1.0, cells=48).all()
+
+
+def _lamp_scene(offset):
+    """A ground quad, a closed box standing on it and a closed icosphere shade around
+    (0, 1, 0); every coordinate moved by ``offset``."""
+    import trimesh
+
+    from shadowlab.scene.mesh import Scene
+
+    shade = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    shade.apply_translation([0, 1, 0])
+    box = trimesh.creation.box(extents=[0.6, 0.8, 0.6])
+    box.apply_translation([1.2, 0.4, 0.3])
+    ground = (np.array([[-4, 0, -4], [4, 0, -4], [4, 0, 4], [-4, 0, 4.0]]),
+              np.array([[0, 2, 1], [0, 3, 2]]))
+    parts = [(shade.vertices, shade.faces), (box.vertices, box.faces), ground]
+    verts, faces, oid, base = [], [], [], 0
+    for k, (v, f) in enumerate(parts):
+        verts.append(np.asarray(v, float) + offset)
+        faces.append(np.asarray(f) + base)
+        oid.append(np.full(len(f), k))
+        base += len(v)
+    return Scene(np.vstack(verts), np.vstack(faces), np.concatenate(oid),
+                 ("shade", "box", "ground"))
+
+
+def test_light_outside_objects_against_known_positions():
+    scene = _lamp_scene(np.zeros(3))
+    closed = np.array([o.closed for o in scene.report().objects])
+    assert closed.tolist() == [True, True, False]
+    corner = scene.vertices[scene.faces[scene.object_id == 1]].reshape(-1, 3).max(axis=0)
+    on_face = np.array([1.2, 0.4, 0.6])                    # the box's +z face
+    cases = {"inside the shade": ([0, 1.05, 0.02], [False, True, False]),
+             "inside the box": ([1.1, 0.3, 0.35], [True, False, False]),
+             "on a face of the box": (on_face, [True, False, False]),
+             "at a corner of the box": (corner, [True, False, False]),
+             "just outside the box": (on_face + [0, 0, 1e-3], [True, True, False]),
+             "far away": ([0, 30, 0], [True, True, False])}
+    for name, (p, want) in cases.items():
+        got = cc.light_outside_objects(scene, np.append(p, 1.0), closed)
+        assert got.tolist() == want, name
+    got = cc.light_outside_objects(scene, np.array([0.3, -1.0, 0.1, 0.0]), closed)
+    assert got.tolist() == [True, True, False]                # a directional light
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+@pytest.mark.parametrize("offset", [0.0, 1e4])
+def test_a_closed_object_around_the_light_is_not_averted_culled(precision, offset):
+    """A point light inside a closed shade: every sample outside it is in its shadow.
+    Before the light-inside rule, the averted step dropped the whole shade (all its
+    triangles face away from a light inside) and every method lit the ground."""
+    o = np.array([offset, 0.0, -offset])
+    scene = _lamp_scene(o)
+    gbuf = sl.render_gbuffer(scene, sl.Camera(eye=o + [0, 4, 6], target=o + [0, 0.5, 0],
+                                              resolution=(32, 32)))
+    light = sl.PointLight(position=o + [0.05, 1.02, -0.03])
+    truth = sl.reference_shadows(scene, gbuf, light)
+    assert gbuf.valid.sum() > 400 and not truth[gbuf.valid].any()   # all in the shade's shadow
+    light_h = np.append(light.position, 1.0)
+    assert cc.front_face_culled(scene, light_h, "averted")[scene.object_id == 1].any()
+    assert not cc.front_face_culled(scene, light_h, "averted")[scene.object_id == 0].any()
+    runs = [("brute_force", {"cull_casters": "hull_averted"}),
+            ("clustered_ptsv", {"front_face_culling": True}),
+            ("clustered_ptsv", {"front_face_culling": True, "cull_side": "facing"}),
+            ("silhouette", {"manifold": "closed"})]
+    for method, options in runs:
+        res = sl.compute_shadows(scene, gbuf, light, method=method, precision=precision,
+                                 **options)
+        lit = np.asarray(res.lit)
+        assert not lit[gbuf.valid].any(), (method, options)
+    # with the light outside the shade the box's averted triangles are still dropped
+    outside = sl.PointLight(position=o + [0.5, 3.0, 0.5])
+    res = sl.compute_shadows(scene, gbuf, outside, method="brute_force", precision=precision,
+                             cull_casters="hull_averted")
+    assert res.counters["culled_casters_averted"] > 0
+    np.testing.assert_array_equal(np.asarray(res.lit)[gbuf.valid],
+                                  sl.reference_shadows(scene, gbuf, outside)[gbuf.valid])

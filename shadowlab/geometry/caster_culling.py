@@ -17,7 +17,9 @@ cone). Two exact tests remove triangles that meet no such set for any sample:
   casters all lie inside) never decides it.
 - ``averted`` (hard shadows only): the triangles of closed objects whose outward side
   faces away from the light (a segment that ends at a light outside the object leaves
-  it through a light-facing triangle, wherever it starts; ``front_face_culled``).
+  it through a light-facing triangle, wherever it starts; ``front_face_culled``). An
+  object that contains the light, or touches it, keeps every triangle
+  (``light_outside_objects``).
 - ``receivers`` (hard shadows only; the receiver-driven culling of CC shadow volumes,
   Lloyd et al. 2004, with a light-space max-depth grid of the samples): a blocker of a
   sample p lies on the segment from the light to p, so it has p's direction from the
@@ -64,10 +66,15 @@ DEPTH_PAD = 1e-4
 DEPTH_REL = 1e-5
 #: outward padding of the hull, a fraction of the scene diagonal
 PAD = 1e-6
+#: a point light closer than this fraction of the scene diagonal to a closed object's
+#: surface counts as inside it (``light_outside_objects``): none of its triangles is
+#: averted-culled
+LIGHT_CLEARANCE = 1e-6
 #: the sides ``front_face_culled`` can drop
 CULL_SIDES = ("averted", "facing")
 
 _SUBSETS = per_scene_cache()      # {scene: {kept-mask bytes: subset scene}}
+_BOXES = per_scene_cache()        # {scene: per-object bounding boxes}
 _MAX_SUBSETS = 4
 
 
@@ -87,15 +94,20 @@ def front_face_culled(scene, light_h: np.ndarray, side: str = "averted") -> np.n
     always leaves the object through a light-facing triangle, wherever the segment
     starts, so this is exact with either bias.
 
-    The outward side comes from the sign of the object's signed volume; open objects keep
-    all their triangles (culling them would lose shadows). ``light_h`` float64 [4] is the
-    homogeneous light (w = 0: the direction towards a directional light).
+    Both rules need the light *outside* the object: a closed object that contains a
+    point light (a lamp inside a closed shade, a light inside a closed room), or whose
+    surface passes within ``LIGHT_CLEARANCE`` of it, keeps all its triangles
+    (:func:`light_outside_objects`); so does every open object (culling it would lose
+    shadows). The outward side comes from the sign of the object's signed volume.
+    ``light_h`` float64 [4] is the homogeneous light (w = 0: the direction towards a
+    directional light, outside every object).
     """
     if side not in CULL_SIDES:
         raise ValueError(f"side must be one of {CULL_SIDES}")
     report = scene.report()
     closed = np.array([o.closed for o in report.objects] +
                       [False] * (scene.num_objects - len(report.objects)))
+    closed &= light_outside_objects(scene, light_h, closed)
     tri = scene.triangles
     v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
     n = np.cross(v1 - v0, v2 - v0)
@@ -104,6 +116,64 @@ def front_face_culled(scene, light_h: np.ndarray, side: str = "averted") -> np.n
     orient = np.where(orient == 0, 1.0, orient)
     facing = np.einsum("ij,ij->i", n, light_h[:3] - light_h[3] * v0) * orient[scene.object_id]
     return closed[scene.object_id] & (facing > 0 if side == "facing" else facing < 0)
+
+
+def light_outside_objects(scene, light_h: np.ndarray, objects: np.ndarray) -> np.ndarray:
+    """bool [objects]: True where the light is strictly outside the closed object, for
+    the objects flagged in ``objects`` (bool [num_objects]; others are False).
+
+    A directional light (``light_h[3] == 0``) is outside every object. A point light is
+    outside an object if it lies outside the object's bounding box padded by
+    ``LIGHT_CLEARANCE`` of the scene diagonal; otherwise (float64, on that object's
+    triangles) if its generalized winding number (the sum of the triangles' signed solid
+    angles over 4 pi, Van Oosterom and Strackee 1983: 0 outside a closed surface, +-1
+    inside) is below 1/2 in magnitude *and* no triangle of the object is within the
+    clearance of it. The clearance rule covers a light on (or at a corner or edge of)
+    the surface, where the winding number takes fractional values.
+    """
+    out = np.zeros(scene.num_objects, bool)
+    out[: len(objects)] = objects
+    if light_h[3] == 0 or not out.any():
+        return out
+    p = np.asarray(light_h[:3], np.float64) / light_h[3]
+    clearance = LIGHT_CLEARANCE * scene.diagonal
+    tri = scene.triangles
+    oid = scene.object_id
+    lo, hi = object_boxes(scene)
+    near = out & np.all((p >= lo - clearance) & (p <= hi + clearance), axis=1)
+    if not near.any():
+        return out
+    pick = np.flatnonzero(near[oid])
+    t = tri[pick] - p
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+    num = np.einsum("ij,ij->i", a, np.cross(b, c))
+    den = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb
+           + np.einsum("ij,ij->i", b, c) * la)
+    winding = np.bincount(oid[pick], weights=2.0 * np.arctan2(num, den),
+                          minlength=scene.num_objects) / (4.0 * np.pi)
+    dist = np.full(scene.num_objects, np.inf)
+    np.minimum.at(dist, oid[pick], _point_triangle_distance(p, tri[pick]))
+    out[near] = (np.abs(winding[near]) < 0.5) & (dist[near] > clearance)
+    return out
+
+
+def object_boxes(scene) -> tuple[np.ndarray, np.ndarray]:
+    """float64 [num_objects, 3] lower and upper corners of each object's triangles
+    (+inf / -inf for an object without triangles); computed once per scene."""
+    if scene not in _BOXES:
+        oid = scene.object_id
+        order = np.argsort(oid, kind="stable") if np.any(oid[1:] < oid[:-1]) else None
+        v = scene.vertices[scene.faces if order is None else scene.faces[order]]
+        ids = oid if order is None else oid[order]
+        lo = np.full((scene.num_objects, 3), np.inf)
+        hi = np.full((scene.num_objects, 3), -np.inf)
+        if len(ids):
+            starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+            lo[ids[starts]] = np.minimum.reduceat(v.min(axis=1), starts)
+            hi[ids[starts]] = np.maximum.reduceat(v.max(axis=1), starts)
+        _BOXES[scene] = (lo, hi)
+    return _BOXES[scene]
 
 
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -43,6 +43,7 @@ from ..engines.silhouette_bins import (batch_arrays, cap_shapes, farthest_depth,
                                       unbatch)
 from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
                                           edge_table, side_kernel, vertex_terms)
+from ..geometry.caster_culling import light_outside_objects
 from ..geometry.clip_visibility import CULL_MODES, side_visible
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.view import PointLight, hard_light
@@ -219,6 +220,8 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                 active &= np.asarray(valid)[:m_tri]
             if manifold == "closed":
                 closed = np.array([o.closed for o in scene.report().objects], bool)
+                # a closed object around the light casts through its averted triangles
+                closed = light_outside_objects(scene, lh, closed)[: len(closed)]
                 orient = _object_orientation(scene)
                 facing = orient[scene.object_id] * _permutation_parity(faces) * s_t > 0
                 active &= ~closed[scene.object_id] | facing
