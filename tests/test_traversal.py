@@ -47,7 +47,8 @@ class RangeTests:
         accept = exists & ~reject & ctx["may_accept"][item][:, None] & (lo >= qa) & (hi <= qb)
         intersect = exists & ~reject & ~accept
         counts = jnp.stack([jnp.sum(exists), jnp.sum(accept), jnp.sum(reject)]).astype(jnp.int32)
-        return accept, intersect, counts
+        accept_w, intersect_w = tv.child_words(accept, intersect)
+        return accept_w, intersect_w, counts
 
     def leaves(self, ctx, item, node, ok, state):
         visits, item_sum = state

@@ -90,12 +90,30 @@ class NodeTests(Protocol):
                 intersected); accepted: bool [rows, 32] as the wave started, or None
                 without pruning.
         Returns:
-            (accept, intersect, counts): bool [N, 32], bool [N, 32] and int32 [K].
+            (accept, intersect, counts): uint32 [N] words (bit c: child c is accepted /
+            intersected) and int32 [K]. :func:`child_words` packs [N, 32] masks.
         """
 
     def leaves(self, ctx: Any, item, node, ok, state):
         """Process C leaf jobs: item int32 [C], node uint32 [C] leaf keys, ok bool [C]
         (False: padding). ``state`` is the leaf state pytree; returns the new one."""
+
+
+def child_words(*masks):
+    """Pack bool [N, 32] child masks into uint32 [N] words (bit c = child c), all in one
+    variadic reduction.
+
+    Every mask is usually an expression of one classification of the children. Each
+    separate consumer of it (a reduction, a scatter) becomes a loop fusion of its own on
+    XLA/CPU that recomputes the whole classification (six copies of the plane tests in
+    the clustered expansion, measured in the optimized HLO; an optimization barrier is
+    removed before fusion and does not help). One reduction with every mask as an
+    operand is one fusion, which computes the classification once per child.
+    """
+    c = jnp.arange(32, dtype=jnp.uint32)
+    ops = tuple(m.astype(jnp.uint32) << c for m in masks)
+    zero = tuple(jnp.uint32(0) for _ in masks)
+    return jax.lax.reduce(ops, zero, lambda a, b: tuple(x | y for x, y in zip(a, b)), (1,))
 
 
 def _expand_level(tests, ctx, level, row_offsets, st, acc_seen, item, node, job, n):
@@ -116,13 +134,12 @@ def _expand_level(tests, ctx, level, row_offsets, st, acc_seen, item, node, job,
         nd = jax.lax.dynamic_slice_in_dim(node, s, e)
         jb = jax.lax.dynamic_slice_in_dim(job, s, e)
         valid = s + jnp.arange(e) < n
-        accept, inter, increment = tests.children(ctx, level, t, nd, valid, acc_seen)
+        accept_w, w, increment = tests.children(ctx, level, t, nd, valid, acc_seen)
         counts = counts + increment
-        rows = jnp.where(jnp.any(accept, axis=1), row0 + nd.astype(jnp.int32), acc.shape[0])
+        rows = jnp.where(accept_w != 0, row0 + nd.astype(jnp.int32), acc.shape[0])
+        accept = ((accept_w[:, None] >> jnp.arange(32, dtype=jnp.uint32)) & 1) == 1
         acc = acc.at[rows].max(accept, mode="drop")
         iters = iters.at[jnp.where(valid, jb, iters_cap)].add(1, mode="drop")
-        w = jnp.sum(inter.astype(jnp.uint32) << jnp.arange(32, dtype=jnp.uint32), axis=1,
-                    dtype=jnp.uint32)
         chunk_end = total + jnp.cumsum(jax.lax.population_count(w).astype(jnp.int32))
         words = jax.lax.dynamic_update_slice_in_dim(words, w, s, 0)
         end = jax.lax.dynamic_update_slice_in_dim(end, chunk_end, s, 0)

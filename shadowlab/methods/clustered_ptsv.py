@@ -47,7 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..geometry.caster_culling import CULL_SIDES, front_face_culled
-from ..engines.traversal import traverse
+from ..engines.traversal import child_words, traverse
 from ..geometry.morton import decode
 from ..scene.view import hard_light
 from ..core.timing import StageTimer
@@ -248,10 +248,10 @@ class PlaneNodeTests:
         cfg, a = ctx
         exists, accept, basic, extra_rej, inter = _test_children(cfg, level, a, tri, node,
                                                                  valid, accepted)
-        counts = jnp.stack([
-            jnp.sum(exists), jnp.sum(accept), jnp.sum(exists & (basic | extra_rej)),
-            jnp.sum(extra_rej)]).astype(jnp.int32)
-        return accept, inter, counts
+        words = child_words(exists, accept, exists & (basic | extra_rej), extra_rej, inter)
+        counts = jnp.stack([jnp.sum(jax.lax.population_count(w), dtype=jnp.int32)
+                            for w in words[:4]])
+        return words[1], words[4], counts
 
     def leaves(self, ctx, tri, leaf, ok, state):
         cfg, a = ctx
