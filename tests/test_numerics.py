@@ -87,3 +87,48 @@ def test_ordered_dot_and_cross3_match_numpy_op_by_op(precision):
         np.testing.assert_array_equal(np.asarray(d), want_dot)
         np.testing.assert_array_equal(np.asarray(c), want_cross)
         np.testing.assert_array_equal(ordered_dot(a, b, np.multiply), want_dot)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64", "int32", "uint32", "uint8", "bool"])
+def test_materialize_returns_its_arrays_bit_for_bit(dtype):
+    from shadowlab.core.numerics import materialize
+
+    with precision_mode("float64" if dtype == "float64" else "float32"):
+        if dtype == "bool":
+            x = np.array([True, False, True, False])
+        elif dtype.startswith("float"):
+            x = np.array([np.nan, -0.0, 0.0, -np.inf, np.inf, 1.5, -3.0,
+                          np.finfo(dtype).tiny], dtype)
+        else:
+            info = np.iinfo(dtype)
+            x = np.array([info.min, info.max, 0, 7], dtype)
+        y = np.asarray(jax.jit(materialize)(x))
+        assert y.dtype == x.dtype
+        np.testing.assert_array_equal(y.view(np.uint8), x.view(np.uint8))
+        rev = x[::-1].copy()
+        a, b = jax.jit(lambda u, v: materialize(u, v))(x, rev)
+        np.testing.assert_array_equal(np.asarray(b).view(np.uint8), rev.view(np.uint8))
+
+
+def test_materialize_computes_an_expression_once_for_several_consumers():
+    """The reason it exists: without it XLA/CPU recomputes the expression in the fusion
+    of each consumer (here three). If an XLA update removes the padded reduction, this
+    fails and the callers (traversal, PSV build and query) lose speed, not exactness."""
+    import re
+
+    from shadowlab.core.numerics import materialize
+
+    def make(mat):
+        def f(x, idx):
+            v = x
+            for k in range(6):
+                v = jnp.sin(v) * x + jnp.cos(v * k)
+            v = mat(v)
+            return jnp.zeros(64).at[idx].add(v), jnp.where(v > 0, idx, 0), v * 2 + 1
+        return jax.jit(f)
+
+    x = jnp.linspace(0, 1, 4096)
+    idx = jnp.arange(4096, dtype=jnp.int32) % 64
+    sines = {name: len(re.findall(r" sine\(", make(m).lower(x, idx).compile().as_text()))
+             for name, m in (("plain", lambda v: v), ("materialized", materialize))}
+    assert sines["materialized"] == 6 and sines["plain"] > 6, sines

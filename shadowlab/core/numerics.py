@@ -92,3 +92,41 @@ def cross3(a, b, mul):
     return [mul(a[1], b[2]) - mul(a[2], b[1]),
             mul(a[2], b[0]) - mul(a[0], b[2]),
             mul(a[0], b[1]) - mul(a[1], b[0])]
+
+
+def _identity_of_max(dtype):
+    if jnp.issubdtype(dtype, jnp.floating):
+        return jnp.array(-jnp.inf, dtype)
+    if dtype == jnp.bool_:
+        return jnp.array(False)
+    return jnp.array(jnp.iinfo(dtype).min, dtype)
+
+
+def materialize(*arrays):
+    """The ``arrays`` (same shape), computed once into buffers by one fusion: returns
+    them unchanged, value for value (NaN and signed zeros included).
+
+    XLA/CPU gives every consumer of an elementwise expression (each output of a loop
+    body, each scatter's indices or updates, each reduction) a loop fusion of its own
+    that recomputes the whole expression; ``jax.lax.optimization_barrier`` is removed
+    before fusion and does not prevent it. A reduction is a fusion root that consumers
+    read from memory, so every array is stacked with the identity of ``max`` along a new
+    last axis of size 2 and reduced over it by one variadic reduction (one fusion for
+    all of them). Measured on a toy expression with three consumers: the expression
+    computed 3 times without, once with, 3x faster. (If a later XLA simplified the
+    padded reduction away, results would be unchanged, only the speed lost.)
+    """
+    ops, inits = [], []
+    for a in arrays:
+        a = jnp.asarray(a)
+        ident = _identity_of_max(a.dtype)
+        ops.append(jnp.stack([a, jnp.broadcast_to(ident, a.shape)], axis=-1))
+        inits.append(ident)
+    nd = ops[0].ndim - 1
+
+    def combine(x, y):
+        return tuple(jnp.logical_or(u, v) if u.dtype == jnp.bool_ else jax.lax.max(u, v)
+                     for u, v in zip(x, y))
+
+    out = jax.lax.reduce(tuple(ops), tuple(inits), combine, (nd,))
+    return out if len(arrays) > 1 else out[0]

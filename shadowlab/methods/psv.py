@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.capacity import bucket, pad
+from ..core.numerics import materialize
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.caches import per_scene_cache
 from ..scene.view import hard_light
@@ -218,6 +219,14 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 skip = (q == 0) & (key < ex)
             else:
                 skip = jnp.zeros_like(act)
+            if query != "stackless":
+                # The stack step has several outputs (state word, stack scatter, stats);
+                # materialize the node test's decisions once instead of recomputing the
+                # plane test in each of their fusions (XLA/CPU).
+                flags, pchild, ichild = materialize(
+                    inside.astype(jnp.int32) | (wedge_ok.astype(jnp.int32) << 1)
+                    | (skip.astype(jnp.int32) << 2), pchild, ichild)
+                inside, wedge_ok, skip = ((flags >> i) & 1 == 1 for i in range(3))
             visited = s["visited"] + act
 
             if query != "stack" and not fast:
