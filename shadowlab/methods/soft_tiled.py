@@ -57,7 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.numerics import opaque_zero
+from ..core.numerics import materialize, opaque_zero
 from ..geometry.morton import encode, round_robin_layout
 from ..reference.raycast import shadow_epsilon
 from ..scene.caches import per_scene_cache
@@ -333,7 +333,13 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             else:
                 edges, ok = sd.homogeneous_edges_list(d, px["s"], px["nrm"], eps,
                                                       px["zl"] if sphere else None, zr)
-            return sd.pack_list(sd.polygon_keep_list(edges, g, mask & ok, zr), g)
+            # Each grid word is its own loop fusion on XLA/CPU, and each recomputed the
+            # vertex gather, light-frame transform and edge setup: compute the edge
+            # functions once (their products are opaque, so no FMA spans the boundary).
+            flat = jnp.broadcast_arrays(*(x for e in edges for x in e), mask & ok)
+            flat = materialize(*flat)
+            edges = [tuple(flat[3 * i: 3 * i + 3]) for i in range(len(edges))]
+            return sd.pack_list(sd.polygon_keep_list(edges, g, flat[-1], zr), g)
 
         def raster_pair(e, mask, px, gate=False):
             """Keep words of triangle e (per lane: [G, 256], or [n] lanes of the flush)
@@ -394,6 +400,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                     use = act & quick
                     if test == "both":
                         use &= sphere_passes(ent[:, k, None])
+                    # once for the counters and the record bits (one fusion each else)
+                    use, near = materialize(use, near)
                     rast = rast + use.astype(jnp.int32)
                     clamp = clamp + (use & near).astype(jnp.int32)
                 if test == "sphere":
