@@ -108,7 +108,8 @@ def child_words(*masks):
     XLA/CPU that recomputes the whole classification (six copies of the plane tests in
     the clustered expansion, measured in the optimized HLO; an optimization barrier is
     removed before fusion and does not help). One reduction with every mask as an
-    operand is one fusion, which computes the classification once per child.
+    operand is one fusion, which computes the classification once per child (the same
+    mechanism as ``core.numerics.materialize``, here with a real reduction).
     """
     c = jnp.arange(32, dtype=jnp.uint32)
     ops = tuple(m.astype(jnp.uint32) << c for m in masks)
