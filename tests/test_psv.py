@@ -109,6 +109,30 @@ def test_reused_tree_gives_the_same_result(precision):
     assert r.counters["tree_reused"] == 0
 
 
+def test_device_node_arrays_live_as_long_as_their_tree():
+    """The query's packed node arrays are made once per tree (a reused tree does not
+    repack them) and die with it; their contents are node_arrays'."""
+    import gc
+    import weakref
+
+    scene, light, gbuf, _ = _setup("gate")
+    samples = view_samples(gbuf, light)
+    tree = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=np.float32,
+                           shadow_eps=1e-3, bias="receiver", order="mesh", seed=0,
+                           wedge="conservative", classify_ulps=8.0, face_culling="none",
+                           frustum_culling=False, build="parallel")[0]
+    rows = psvm.device_node_arrays(tree, True)
+    assert psvm.device_node_arrays(tree, True) is rows
+    for got, want in zip(rows, psvm.node_arrays(tree, True)):
+        np.testing.assert_array_equal(np.asarray(got), want)
+    cols = psvm.device_node_arrays(tree, False)
+    assert len(cols) == 9 and cols is not rows
+    probe = weakref.ref(rows[0])
+    del tree, rows, cols
+    gc.collect()
+    assert probe() is None and len(psvm._DEVICE_NODES) == 0
+
+
 @pytest.mark.parametrize("tile", [5, 8])
 def test_lane_tiles_keep_every_result(tile, precision):
     """``lane_tile`` only regroups the query's lanes: the lit mask and every counter

@@ -17,6 +17,7 @@ the papers' ``location > 0``) and behind a cap when ``cap(p) * scale[p] < bound[
 from __future__ import annotations
 
 import functools
+import weakref
 import time
 
 import jax
@@ -458,6 +459,19 @@ def node_arrays(tree: tt.TopTree, rows: bool = True) -> tuple:
     return out, tree.anc
 
 
+_DEVICE_NODES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def device_node_arrays(tree: tt.TopTree, rows: bool) -> tuple:
+    """:func:`node_arrays` as device arrays, kept as long as ``tree`` lives: a tree reused
+    under a static light (``reuse_tree``) does not repack and copy its nodes on every
+    call (at 1M triangles 4 M rows of 32 bytes). A rebuilt tree is a new object."""
+    held = _DEVICE_NODES.setdefault(tree, {})
+    if rows not in held:
+        held[rows] = tuple(jnp.asarray(a) for a in node_arrays(tree, rows))
+    return held[rows]
+
+
 @functools.lru_cache(maxsize=None)
 def _init_kernel(b: int, query: str, k: int):
     """Jitted: the query state of ``b`` lanes, the first ``live`` at node ``root``, on the
@@ -530,7 +544,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     k = max(stack_size, 1)
     tol = jnp.asarray(dt(tree.margin))
     with timer.stage("query_setup"):
-        treeargs = tuple(jnp.asarray(a) for a in node_arrays(tree, ROWS[query]))
+        treeargs = device_node_arrays(tree, ROWS[query])
         light = jnp.asarray(light_h.astype(dt))
     kernel = _chunk_kernel(query, depth_test, wedge, stack_size, "lose", stackless_cap,
                            edge_tie, chunk, bool(light_h[3] == 0))
