@@ -290,6 +290,15 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             # A push followed by a pop in the same step visits the pushed node directly.
             direct = push & need_pop
             stored = push & ~need_pop
+            # the transition flags once for the stack scatter, the state word and stats
+            vals = (push, need_pop, switch, lost, go_pos, go_neg, st_shadow, st_mode, stall)
+            packed = materialize(functools.reduce(jnp.bitwise_or, [
+                jnp.broadcast_to(v, act.shape).astype(jnp.int32) << i
+                for i, v in enumerate(vals)]))
+            (push, need_pop, switch, lost, go_pos, go_neg, st_shadow, st_mode,
+             stall) = ((packed >> i) & 1 == 1 for i in range(len(vals)))
+            direct = push & need_pop
+            stored = push & ~need_pop
             # Row k is a scratch row: every lane writes exactly one distinct slot, so the
             # scatter needs no bounds or collision handling (3-4x faster on XLA/CPU).
             stack = s["stack"].at[jnp.where(stored, sp, k) * b + lanes].set(
