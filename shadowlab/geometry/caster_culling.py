@@ -144,7 +144,8 @@ def light_outside_objects(scene, light_h: np.ndarray, objects: np.ndarray) -> np
     if not near.any():
         return out
     pick = np.flatnonzero(near[oid])
-    t = tri[pick] - p
+    sel = tri[pick]
+    t = sel - p
     a, b, c = t[:, 0], t[:, 1], t[:, 2]
     la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
     num = np.einsum("ij,ij->i", a, np.cross(b, c))
@@ -153,7 +154,7 @@ def light_outside_objects(scene, light_h: np.ndarray, objects: np.ndarray) -> np
     winding = np.bincount(oid[pick], weights=2.0 * np.arctan2(num, den),
                           minlength=scene.num_objects) / (4.0 * np.pi)
     dist = np.full(scene.num_objects, np.inf)
-    np.minimum.at(dist, oid[pick], _point_triangle_distance(p, tri[pick]))
+    np.minimum.at(dist, oid[pick], _point_triangle_distance(p, sel))
     out[near] = (np.abs(winding[near]) < 0.5) & (dist[near] > clearance)
     return out
 

@@ -287,9 +287,6 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             go_neg = ~skip & inside & ~is_cap
             st_shadow = ~skip & inside & is_cap & ~switch
             need_pop = ~switch & ~go_pos & ~go_neg & ~st_shadow
-            # A push followed by a pop in the same step visits the pushed node directly.
-            direct = push & need_pop
-            stored = push & ~need_pop
             # the transition flags once for the stack scatter, the state word and stats
             vals = (push, need_pop, switch, lost, go_pos, go_neg, st_shadow, st_mode, stall)
             packed = materialize(functools.reduce(jnp.bitwise_or, [
@@ -297,6 +294,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 for i, v in enumerate(vals)]))
             (push, need_pop, switch, lost, go_pos, go_neg, st_shadow, st_mode,
              stall) = ((packed >> i) & 1 == 1 for i in range(len(vals)))
+            # A push followed by a pop in the same step visits the pushed node directly.
             direct = push & need_pop
             stored = push & ~need_pop
             # Row k is a scratch row: every lane writes exactly one distinct slot, so the
