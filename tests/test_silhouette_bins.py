@@ -140,3 +140,52 @@ def test_split_lists_equal_the_full_passes(monkeypatch, stencil, precision):
     # some list was split (more non-empty parts than blocks)
     assert any(parts > blocks for blocks, parts in calls), calls
     _assert_same_counts(full, split)
+
+
+class _Grid:
+    """The part of a SampleGrid that the list builder reads."""
+
+    def __init__(self, gx, gy):
+        self.shape = (gx, gy)
+
+
+@pytest.mark.parametrize("sets,unique", [(1, False), (2, True), (3, True)])
+def test_cell_lists_equal_a_plain_loop_over_the_spans(sets, unique):
+    """Each cell's list from row spans (one set in rank order, or several overlapping
+    sets with repeats dropped) equals a plain loop over the spans, ranks ascending."""
+    rng = np.random.default_rng(5 + sets)
+    gx, gy, n_rank = 7, 5, 60
+    spans = []
+    for s in range(sets):
+        m = 200
+        if sets == 1:       # one set: in rank order, a rank's rows distinct
+            rank, row = np.divmod(np.sort(rng.choice(n_rank * gy, m, replace=False)), gy)
+        else:
+            rank, row = rng.integers(0, n_rank, m), rng.integers(0, gy, m)
+        lo = rng.integers(0, gx, m)
+        hi = np.minimum(gx - 1, lo + rng.integers(0, 4, m))
+        spans.append((row, lo, hi, rank))
+    ranks, starts, lengths = bins._cell_lists(_Grid(gx, gy), spans, unique=unique)
+    expect = {c: [] for c in range(gx * gy)}
+    for row, lo, hi, rank in spans:
+        for y, a, b, r in zip(row, lo, hi, rank):
+            for x in range(a, b + 1):
+                expect[y * gx + x].append(int(r))
+    for c in range(gx * gy):
+        want = sorted(set(expect[c])) if unique else sorted(expect[c])
+        got = ranks[starts[c]: starts[c] + lengths[c]].tolist()
+        assert got == want, c
+    assert lengths.sum() == len(ranks)
+
+
+def test_count_below_equals_a_search_per_segment():
+    """The all-at-once binary search counts, in each ascending segment, the values below
+    the bound, as np.searchsorted does segment by segment (empty segments included)."""
+    rng = np.random.default_rng(9)
+    lengths = rng.integers(0, 40, 300)
+    values = np.concatenate([np.sort(rng.integers(0, 100, n)) for n in lengths]).astype(np.int32)
+    starts = np.cumsum(lengths) - lengths
+    bound = rng.integers(-5, 110, 300)
+    got = bins._count_below(values, starts, lengths, bound)
+    want = [np.searchsorted(values[s: s + n], b) for s, n, b in zip(starts, lengths, bound)]
+    np.testing.assert_array_equal(got, want)

@@ -58,6 +58,7 @@ passes per sample.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -223,9 +224,10 @@ class ScreenBins:
     """Per-cell primitive lists (K primitives, Nc cells plus one 'all' cell).
 
     Attributes:
-        entries: int64 [E] primitive indices (into the K primitives), grouped by cell
+        entries: int32 [E] primitive indices (into the K primitives), grouped by cell
             (with a depth cut: in order of nearest depth, or of farthest depth
-            descending, within a cell).
+            descending, within a cell; else in index order); the lists lie column after
+            column of cells, the 'all' cell's last.
         starts, lengths: int64 [Nc + 1] each cell's first entry and list length.
         block_lengths: int64 [Nb] the part of its cell's list each block of the grid
             tests (all of it, or with a depth cut the primitives not beyond the block).
@@ -302,8 +304,6 @@ def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
     return [(np.stack([a, b, da, db], axis=1), ratio)]
 
 
-#: boxes wider or taller than about this many pixels are cut to their cone before binning
-CLIP_PIXELS = 64
 #: a generator pair spans a facet plane only if |x x y| >= this times |x| |y|
 FACET_CONDITION = 1e-6
 #: slack (an angle, radians) of the one-side test of the other generators
@@ -385,8 +385,9 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
            factor: float = PAD_FACTOR):
     """Screen regions of K primitives with generators pts [K, P, 3]: padded boxes [K, 4]
     (u0, u1, v0, v1) cut to the padded cone, the cone's padded screen half-planes
-    (a, b, c, valid [K, F] each, pad [K]), and bool [K] whether the primitive is binned
-    at all (False: it goes into every cell)."""
+    (a, b, c, valid [K, F] each, pad [K]), bool [K] whether the primitive is binned
+    at all (False: it goes into every cell), and bool [K] whether its region misses
+    the samples' box (it then enters no cell)."""
     uvz = _project(pts, basis)
     u, v, z = uvz[..., 0], uvz[..., 1], uvz[..., 2]
     bounded = np.all(z > 0, axis=1)
@@ -405,16 +406,24 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
     ok &= np.all(np.isfinite(box), axis=1)
     box = np.where(ok[:, None], box, 0.0)
     lines = _screen_lines(*cone_facets(pts), basis)
-    # cutting the box to the cone pays for unbounded and large boxes only (a box within
-    # a few cells loses nothing the row spans would not drop anyway)
-    cell = [CLIP_PIXELS / grid.tile / sc if sc > 0 else np.inf for sc in grid.scale]
-    big = ok & (~bounded | (box[:, 1] - box[:, 0] > cell[0])
-                | (box[:, 3] - box[:, 2] > cell[1]))
+    # a bounded cone's projection is the hull of its projected generators, whose box the
+    # facets cannot cut further: only an unbounded one (its box: the samples' box) is
+    # cut to its cone
+    cut = ok & ~bounded
     empty = np.zeros(len(box), bool)
-    if big.any():
-        clipped, nonempty = _clip_box(box[big], tuple(x[big] for x in lines), pad[big])
-        box[big] = np.where(nonempty[:, None], clipped, box[big])
-        empty[big] = ~nonempty
+    if cut.any():
+        clipped, nonempty = _clip_box(box[cut], tuple(x[cut] for x in lines), pad[cut])
+        box[cut] = np.where(nonempty[:, None], clipped, box[cut])
+        empty[cut] = ~nonempty
+    # no q lies outside the samples' box: a bounded box is cut to it (a primitive beside
+    # every sample enters no cell, not the border cells its clamped range would reach)
+    inside = np.stack([np.maximum(box[:, 0], sample_box[0]), np.minimum(box[:, 1], sample_box[1]),
+                       np.maximum(box[:, 2], sample_box[2]), np.minimum(box[:, 3], sample_box[3])],
+                      axis=1)
+    met = (inside[:, 0] <= inside[:, 1]) & (inside[:, 2] <= inside[:, 3])
+    bounded_ok = ok & bounded
+    box[bounded_ok] = inside[bounded_ok]
+    empty |= bounded_ok & ~met
     return box, lines + (pad,), ok, empty
 
 
@@ -458,42 +467,92 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
     # each box's cell range that meet its cone
     bounded = np.logical_and.reduce([ok for _, _, ok, _ in boxes])[prim]
     rank = np.flatnonzero(bounded)
-    cols, ranks = [], []
+    spans = []
     for box, lines, _, empty in boxes:
         keep = rank[~empty[prim[rank]]]
-        cells, which = _row_spans(grid, box, lines, prim[keep])
-        cols.append(cells)
-        ranks.append(keep[which])
+        row, lo, hi, which = _row_spans(grid, box, lines, prim[keep])
+        spans.append((row, lo, hi, keep[which]))
     every = np.flatnonzero(~bounded)
-    cols.append(np.repeat(np.arange(n_cells), len(every)))
-    ranks.append(np.tile(every, n_cells))
-    c, r = np.concatenate(cols), np.concatenate(ranks)
-    if len(boxes) > 1:                  # a cell met by both boxes of a primitive: once
-        key = np.sort(c * n_prim + r)          # (np.unique hashes: slower here)
-        key = key[np.concatenate([[True], key[1:] != key[:-1]])]
-        c, r = key // n_prim, key % n_prim
-    else:                               # by cell, then rank (radix sorts of small ints)
-        o = np.argsort(r, kind="stable")
-        o = o[np.argsort(c[o].astype(np.uint16 if n_cells < 65536 else np.int64),
-                         kind="stable")]
-        c, r = c[o], r[o]
-    lengths = np.bincount(c, minlength=n_cells + 1).astype(np.int64)
-    lengths[n_cells] = n_prim
-    entries = np.concatenate([prim[r], prim])
-    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    if len(every):                      # every row, whole, for each unbounded primitive
+        gx, gy = grid.shape
+        spans.append((np.tile(np.arange(gy), len(every)), np.zeros(gy * len(every), np.int64),
+                      np.full(gy * len(every), gx - 1), np.repeat(every, gy)))
+    ranks, starts, lengths = _cell_lists(grid, spans, unique=len(boxes) > 1)
+    # the 'all' cell: every primitive, in rank order
+    ranks = np.concatenate([ranks, np.arange(n_prim, dtype=ranks.dtype)])
+    starts = np.append(starts, len(ranks) - n_prim)
+    lengths = np.append(lengths, n_prim)
+    entries = prim.astype(np.int32)[ranks] if rank_key is not None else ranks
     bc = grid.block_cell
     if rank_key is None:
         block_len = lengths[bc]
     else:
-        # entries of the block's cell within the block's depth limit: the ranks of the
-        # primitives with key <= limit are those below searchsorted(key, limit)
+        # entries of the block's cell within the block's depth limit: each list is in
+        # rank order, and the primitives with key <= limit are the ranks below
+        # searchsorted(key, limit)
         below = np.searchsorted(rank_key[prim], limit, side="right")
-        key = np.concatenate([c * (n_prim + 1) + r, n_cells * (n_prim + 1) + np.arange(n_prim)])
-        block_len = np.searchsorted(key, bc * (n_prim + 1) + below) - starts[bc]
+        block_len = _count_below(ranks, starts[bc], lengths[bc], below)
         block_len = np.where(bc == n_cells, n_prim, block_len)
     per_block = np.bincount(grid.slot // grid.block, minlength=len(bc))[: len(bc)]
     return ScreenBins(entries, starts, lengths, block_len.astype(np.int64),
                       int((~bounded).sum()), int((block_len * per_block).sum()))
+
+
+def _cell_lists(grid: "SampleGrid", spans: list, unique: bool):
+    """Per-cell lists of ranks from row spans: each span ``(row, lo, hi, rank)`` puts
+    ``rank`` into the cells ``lo..hi`` of cell row ``row``.
+
+    Args:
+        spans: [(row, lo, hi, rank) int [M_i] each]; a single set must be in rank order.
+        unique: drop a rank repeated in a cell (spans of several sets may overlap).
+
+    Returns:
+        (ranks int32 [E], starts int64 [Nc], lengths int64 [Nc]): each cell's ranks
+        ascending, at ``ranks[starts[c] : starts[c] + lengths[c]]``. The lists lie
+        column after column of cells (cell ids are row-major): selecting each column's
+        spans keeps them in (row, rank) order, with no sort of the E entries.
+    """
+    gx, gy = grid.shape
+    row, lo, hi, rank = (np.concatenate(x) for x in zip(*spans))
+    order = np.argsort(rank, kind="stable") if len(spans) > 1 else None
+    small = np.int16 if max(gx, gy) < 2 ** 15 else np.int64
+    by_row = np.argsort(row.astype(small) if order is None else row[order].astype(small),
+                        kind="stable")
+    if order is not None:
+        by_row = order[by_row]
+    row, lo, hi = (x[by_row].astype(small) for x in (row, lo, hi))
+    rank = rank[by_row].astype(np.int32)
+    pieces, counts = [], np.zeros((gx, gy), np.int64)
+    for x in range(gx):
+        sel = np.flatnonzero((lo <= x) & (hi >= x))
+        r, y = rank[sel], row[sel]
+        if unique and len(r):
+            first = np.ones(len(r), bool)
+            first[1:] = (y[1:] != y[:-1]) | (r[1:] != r[:-1])
+            r, y = r[first], y[first]
+        pieces.append(r)
+        counts[x] = np.bincount(y, minlength=gy)
+    ranks = np.concatenate(pieces) if pieces else np.zeros(0, np.int32)
+    starts = (np.cumsum(counts) - counts.ravel()).reshape(gx, gy)
+    # cell (row y, column x) is y * gx + x
+    return ranks, starts.T.ravel(), counts.T.ravel()
+
+
+def _count_below(values: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
+                 bound: np.ndarray) -> np.ndarray:
+    """int64 [N]: how many of the ascending ``values[starts[i] : starts[i] + lengths[i]]``
+    are below ``bound[i]`` (a binary search in each segment, all at once)."""
+    lo = np.asarray(starts, np.int64).copy()
+    hi = lo + lengths
+    last = max(len(values) - 1, 0)
+    while True:
+        active = lo < hi
+        if not active.any():
+            return lo - starts
+        mid = (lo + hi) // 2
+        right = active & (values[np.minimum(mid, last)] < bound)
+        lo = np.where(right, mid + 1, lo)
+        hi = np.where(active & ~right, mid, hi)
 
 
 def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
@@ -505,38 +564,40 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
     form one column span: the box's columns cut by every facet's bound (a cell is kept
     iff it meets each half-plane; the bounds are widened by a millionth of a cell).
 
-    Returns (cell int64 [N], the index into ``prim`` int64 [N]).
+    Returns the non-empty spans, in order of primitive then row: (row, lo, hi, the
+    index into ``prim``) int64 [M] each (cells lo..hi of cell row ``row``).
     """
     a, b, c, valid, pad = (x[prim] for x in lines)
     x0, x1 = grid.index(box[prim, 0], 0), grid.index(box[prim, 1], 0)
     y0, y1 = grid.index(box[prim, 2], 1), grid.index(box[prim, 3], 1)
     ny = y1 - y0 + 1
-    k = np.repeat(np.arange(len(prim)), ny)
     row = np.repeat(y0, ny) + run_offsets(ny)
     v0, v1 = (e[row] for e in grid.cell_edges(1))
-    lo, hi = x0[k].astype(np.float64), x1[k].astype(np.float64)
-    ok = np.ones(len(k), bool)
+    lo, hi = np.repeat(x0, ny), np.repeat(x1, ny)
+    ok = np.ones(len(row), bool)
     width = 1.0 / grid.scale[0] if grid.scale[0] > 0 else 0.0
+    per_row = functools.partial(np.repeat, repeats=ny)     # a primitive's value, per row
     for f in range(a.shape[1]):
-        af, bf, use = a[k, f], b[k, f], valid[k, f]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            reach = (np.where(bf > 0, bf * v1, np.where(bf < 0, bf * v0, 0.0))
-                     + c[k, f] + pad[k])                    # a u + reach >= 0 somewhere
-            bound = -reach / np.where(af != 0, af, 1.0)
+        af, bf, use = a[:, f], b[:, f], valid[:, f]
         flat = use & (np.abs(af) <= FACET_CONDITION)        # no u in it: the row or none
-        ok &= ~flat | (reach >= 0)
         up = use & (af > FACET_CONDITION)                   # u >= bound
         down = use & (af < -FACET_CONDITION)                # u <= bound
+        if not (flat | up | down).any():
+            continue
+        flat, up, down, b_row = (per_row(x) for x in (flat, up, down, bf))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v_end = np.where(b_row > 0, v1, np.where(b_row < 0, v0, 0.0))
+            reach = b_row * v_end + per_row(c[:, f]) + per_row(pad)   # a u + reach >= 0
+            bound = -reach / per_row(np.where(af != 0, af, 1.0))
+        ok &= ~flat | (reach >= 0)
         with np.errstate(invalid="ignore"):
-            lo = np.where(up & (bound > -np.inf),
-                          np.maximum(lo, grid.index(bound - 2e-6 * width, 0)), lo)
-            hi = np.where(down & (bound < np.inf),
-                          np.minimum(hi, grid.index(bound + 2e-6 * width, 0)), hi)
+            cell = grid.index(bound + np.where(up, -2e-6 * width, 2e-6 * width), 0)
+        lo = np.where(up & (bound > -np.inf), np.maximum(lo, cell), lo)
+        hi = np.where(down & (bound < np.inf), np.minimum(hi, cell), hi)
         ok &= ~(up & (bound == np.inf)) & ~(down & (bound == -np.inf))
-    lo, hi = lo.astype(np.int64), hi.astype(np.int64)
-    n = np.where(ok & (hi >= lo), hi - lo + 1, 0)
-    cells = np.repeat(row * grid.shape[0] + lo, n) + run_offsets(n)
-    return cells, np.repeat(k, n)
+    some = np.flatnonzero(ok & (hi >= lo))
+    k = np.repeat(np.arange(len(prim)), ny)
+    return row[some], lo[some], hi[some], k[some]
 
 
 def farthest_depth(points: np.ndarray, basis) -> np.ndarray:
