@@ -349,6 +349,17 @@ def _screen_lines(normals: np.ndarray, valid: np.ndarray, basis):
     return a / ab, b / ab, c / ab, valid
 
 
+def _cone_lines(pts: np.ndarray, which: np.ndarray, basis):
+    """:func:`_screen_lines` of the cone facets of the primitives ``which`` (bool [K])
+    of pts [K, P, 3]; the others get no valid line."""
+    n_pairs = pts.shape[1] * (pts.shape[1] - 1) // 2
+    out = [np.zeros((len(pts), n_pairs)) for _ in range(3)] + [np.zeros((len(pts), n_pairs), bool)]
+    if which.any():
+        for full, part in zip(out, _screen_lines(*cone_facets(pts[which]), basis)):
+            full[which] = part
+    return tuple(out)
+
+
 def _clip_box(box: np.ndarray, lines, pad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The bounding boxes [K, 4] (u0, u1, v0, v1) of K boxes cut by their padded
     half-planes ``a u + b v + c >= -pad``, and bool [K] whether anything is left.
@@ -405,7 +416,12 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
                    sample_box)
     ok &= np.all(np.isfinite(box), axis=1)
     box = np.where(ok[:, None], box, 0.0)
-    lines = _screen_lines(*cone_facets(pts), basis)
+    # facets cut the cells of a box that spans several rows and columns of cells only:
+    # every row (column) of a one-column (one-row) hull box holds a point of the hull,
+    # which every padded facet keeps (the module docstring; lines of the rest: invalid)
+    multi = ((grid.index(box[:, 1], 0) > grid.index(box[:, 0], 0))
+             & (grid.index(box[:, 3], 1) > grid.index(box[:, 2], 1)))
+    lines = _cone_lines(pts, ok & (~bounded | multi), basis)
     # a bounded cone's projection is the hull of its projected generators, whose box the
     # facets cannot cut further: only an unbounded one (its box: the samples' box) is
     # cut to its cone
@@ -660,7 +676,8 @@ def batch_arrays(grid: SampleGrid, bins: ScreenBins):
 
 def unbatch(grid: SampleGrid, blocks: np.ndarray, out) -> np.ndarray:
     """Per-sample values [S] from a binned kernel's output [C, N, B] (blocks [C, N])."""
-    flat = np.zeros((len(grid.q), grid.block), np.int64)
-    # a split list's parts add up
-    np.add.at(flat, np.asarray(blocks).reshape(-1), np.asarray(out).reshape(-1, grid.block))
-    return flat.reshape(-1)[grid.slot]
+    b = grid.block
+    lane = (np.asarray(blocks, np.int64).reshape(-1, 1) * b + np.arange(b)).reshape(-1)
+    # a split list's parts add up (float64 sums of int32 counts: exact below 2^53)
+    flat = np.bincount(lane, weights=np.asarray(out).reshape(-1), minlength=len(grid.q) * b)
+    return flat.astype(np.int64)[grid.slot]
