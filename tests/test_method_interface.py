@@ -1,6 +1,8 @@
 """The method interface: options as one typed model with bounds, the registry's stamps,
 the light check, and the out-of-range option refused by the CLI with exit code 2."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -92,10 +94,32 @@ def test_registry_stamps_name_options_and_total(frame):
         assert res.options == {"precision": "float32", "shadow_eps": DEFAULT_SHADOW_EPS,
                                "cull_casters": "off",
                                "level": 3}
-        assert res.timings == {"work": 0.5, "work_compile": 2.0, "total": 0.5}
+        # the toy's stages claim more than its wall time: no host time is left over
+        assert res.timings == {"work": 0.5, "work_compile": 2.0, "host": 0.0, "total": 0.5}
         assert registry.get(name).kind is MethodKind.APPROXIMATE
         with pytest.raises(MethodError, match="level=5 must be int >= 0 and <= 4"):
             sl.compute_shadows(*frame, method=name, level=5)
+    finally:
+        registry._REGISTRY.pop(name)
+
+
+def test_time_outside_the_stages_is_the_host_stage_and_counts_in_the_total(frame):
+    """Work a method does between its timed stages (here a 0.2 s sleep beside a stage
+    that recorded 0.01 s) is reported as the stage ``host`` and included in ``total``."""
+    name = "_toy_host"
+
+    @registry.register(name, doc="test", kind="approximate", counters=("samples",),
+                       stages=("work",))
+    def toy(scene, gbuf, light, *, precision, shadow_eps):
+        time.sleep(0.2)
+        return ShadowResult(np.ones(gbuf.valid.shape, bool), {"samples": 1}, {"work": 0.01})
+    try:
+        t0 = time.perf_counter()
+        res = sl.compute_shadows(*frame, method=name)
+        wall = time.perf_counter() - t0
+        assert 0.19 <= res.timings["host"] <= wall
+        assert res.timings["total"] == pytest.approx(0.01 + res.timings["host"])
+        assert res.timings["total"] <= wall + 0.01
     finally:
         registry._REGISTRY.pop(name)
 

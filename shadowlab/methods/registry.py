@@ -39,6 +39,15 @@ COMMON_OPTIONS: dict[str, Option] = {
 _REGISTRY: dict[str, MethodInfo] = {}
 
 
+#: stages every method reports: ``host`` (:func:`with_host_time`)
+SHARED_STAGES = ("host",)
+
+
+def _with_shared_stages(stages) -> tuple[str, ...]:
+    """A method's declared stages and the shared ones (none where it declares none)."""
+    return tuple(dict.fromkeys((*stages, *SHARED_STAGES))) if stages else ()
+
+
 def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
              kind: MethodKind | str | None = None, counters: tuple[str, ...] | None = None,
              stages: tuple[str, ...] = (), exact: bool = True, soft: bool = False,
@@ -52,8 +61,9 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
 
     ``kind`` defaults from the older flags: ``soft`` -> soft, else ``exact`` -> exact,
     else approximate. ``counters`` (names from ``shadowlab.core.counters.COUNTERS``) and
-    ``stages`` are checked on every result. ``presets`` ({name: {option: value}}, e.g.
-    ``{"paper": {...}}`` for the paper's own choices) add the option ``preset``
+    ``stages`` (the shared ``SHARED_STAGES`` added) are checked on every result.
+    ``presets`` ({name: {option: value}}, e.g. ``{"paper": {...}}`` for the paper's own
+    choices) add the option ``preset``
     (default ``DEFAULT_PRESET``: the options' defaults); every preset value is validated
     here. ``static_options`` ({option: value}, validated here) are what the method
     may keep across calls under a static light and geometry (``MethodInfo``).
@@ -80,7 +90,7 @@ def register(name: str, *, doc: str, options: dict[str, Option] | None = None,
         old = _REGISTRY.get(name)
         info = MethodInfo(name, fn, doc, opts, kind,
                           None if counters is None else tuple(counters),
-                          tuple(stages), paper, old.kernel if old else None, sets,
+                          _with_shared_stages(stages), paper, old.kernel if old else None, sets,
                           frame, dict(static_options or {}))
         for preset, values in sets.items():
             if "preset" in values:
@@ -181,7 +191,7 @@ def check_result(info: MethodInfo, result) -> None:
 
 def stamp(result, name: str, options: dict):
     """``result`` with the method name, the resolved options and ``timings["total"]`` (the
-    sum of the stage run times, compile excluded) filled in."""
+    sum of the stage run times, ``host`` included, compile excluded) filled in."""
     timings = dict(result.timings)
     timings["total"] = sum(v for k, v in timings.items()
                            if k != "total" and not k.endswith("_compile"))
@@ -203,9 +213,22 @@ def compute_shadows(scene, gbuf, light, method: str = "brute_force", **options):
     opts = info.resolve_options(options)
     local = localize(scene, gbuf, light, info.frame)
     casters, gbuf, culled = _cull(info, local, opts["cull_casters"])
+    t0 = time.perf_counter()
     result = info.fn(casters, gbuf, local.light, **info.call_options(opts))
+    wall = time.perf_counter() - t0
     check_result(info, result)
-    return stamp(culled(result), method, opts)
+    return stamp(culled(with_host_time(result, wall)), method, opts)
+
+
+def with_host_time(result, wall: float):
+    """``result`` with the part of the method's wall time ``wall`` (seconds) that none of
+    its stages recorded (host code between them: gathers, list assembly, copies of the
+    results) added to the stage ``host``, so that ``total`` is the whole call, compile
+    apart, for every method."""
+    timings = dict(result.timings)
+    inner = sum(v for k, v in timings.items() if k != "total")
+    timings["host"] = timings.get("host", 0.0) + max(wall - inner, 0.0)
+    return dataclasses.replace(result, timings=timings)
 
 
 def _cull(info: MethodInfo, local, mode: str):
@@ -245,7 +268,9 @@ def run_kernel(scene, gbuf, light, method: str, **options):
     mode = info.model.validate_one("cull_casters", options.pop("cull_casters", "off"))
     local = localize(scene, gbuf, light, info.frame)
     casters, gbuf, culled = _cull(info, local, mode)
-    result = culled(info.kernel(casters, gbuf, local.light, **options))
+    t0 = time.perf_counter()
+    result = info.kernel(casters, gbuf, local.light, **options)
+    result = culled(with_host_time(result, time.perf_counter() - t0))
     check_counters(result.counters)
     return result
 
