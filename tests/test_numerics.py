@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from shadowlab.core.numerics import (cross3, opaque, opaque_mul, opaque_multiplier,
+from shadowlab.core.numerics import (cross3, norms3, opaque, opaque_mul, opaque_multiplier,
                                      opaque_zero, ordered_dot, ordered_sum)
 from shadowlab.core.frame import precision_mode
 
@@ -132,3 +132,23 @@ def test_materialize_computes_an_expression_once_for_several_consumers():
     sines = {name: len(re.findall(r" sine\(", make(m).lower(x, idx).compile().as_text()))
              for name, m in (("plain", lambda v: v), ("materialized", materialize))}
     assert sines["materialized"] == 6 and sines["plain"] > 6, sines
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_norms3_equal_numpy_norm_bit_for_bit(dtype):
+    """norms3 gives np.linalg.norm(x, axis=-1) bit for bit over 40 decades of scale, with
+    zeros, infinities and NaN, on [N, 3] and [H, W, 3], with keepdims."""
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(200_000, 3)) * 10.0 ** rng.uniform(-20, 20, (200_000, 1))
+    x[:3] = [[0.0, 0.0, 0.0], [np.inf, 1.0, 0.0], [np.nan, 0.0, 1.0]]
+    x = x.astype(dtype)
+    with np.errstate(over="ignore", invalid="ignore"):
+        want, got = np.linalg.norm(x, axis=-1), norms3(x)
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got.view(np.uint8), want.view(np.uint8))
+        grid = x[:40_000].reshape(200, 200, 3)
+        np.testing.assert_array_equal(norms3(grid, keepdims=True),
+                                      np.linalg.norm(grid, axis=-1, keepdims=True))
+    np.testing.assert_array_equal(norms3(np.array([[3, 4, 12]])), [13.0])    # ints: float64
+    with pytest.raises(ValueError, match="length 3"):
+        norms3(np.zeros((4, 2)))

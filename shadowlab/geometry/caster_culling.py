@@ -48,6 +48,7 @@ import itertools
 
 import numpy as np
 
+from ..core.numerics import norms3
 from ..reference.raycast import _orthonormal
 from ..scene.caches import per_scene_cache
 from ..scene.view import DirectionalLight, PointLight, SphereLight, hard_light
@@ -330,7 +331,7 @@ def behind_receivers(triangles: np.ndarray, samples: np.ndarray, light_h: np.nda
         return outside | (near > far + pad + DEPTH_REL * depth_scale)
     light = np.asarray(light_h[:3], np.float64) / light_h[3]
     d = samples - light
-    dist = np.linalg.norm(d, axis=1)
+    dist = norms3(d)
     if dist.min() <= pad:          # a sample at the light: directions are not defined
         return np.zeros(len(triangles), bool)
     # cube faces, each extended by two cells on every side, so a sample within two cells

@@ -39,6 +39,7 @@ import numpy as np
 
 from ..core.capacity import bucket, pad
 from ..core.frame import caster_terms, cap_bias, precision_mode, view_samples
+from ..core.numerics import norms3
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
 from ..geometry.triangle_setup import shadow_volume_planes
@@ -381,12 +382,12 @@ def receiver_points(samples, light_h: np.ndarray, eps: float
     the reference's criterion, whatever lies in front of the light)."""
     p = samples.position
     to_light = light_h[:3] - light_h[3] * p
-    l = to_light / np.linalg.norm(to_light, axis=1, keepdims=True)
+    l = to_light / norms3(to_light, keepdims=True)
     cos = np.maximum(np.einsum("ij,ij->i", samples.normal, l), 1e-12)
     step = eps / cos
     reaches = np.zeros(len(p), bool)
     if light_h[3] != 0:   # never past the light
-        dist = np.linalg.norm(to_light, axis=1)
+        dist = norms3(to_light)
         reaches = step >= dist
         step = np.minimum(step, dist)
     return p + step[:, None] * l, reaches

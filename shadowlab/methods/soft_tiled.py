@@ -57,7 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.numerics import materialize, opaque_zero
+from ..core.numerics import materialize, norms3, opaque_zero
 from ..geometry.morton import encode, round_robin_layout
 from ..reference.raycast import shadow_epsilon
 from ..scene.caches import per_scene_cache
@@ -142,7 +142,7 @@ def pixel_frames(pos, nrm, light: SphereLight, disk_scale: str):
         z_light = np.full(n, np.inf)
     else:
         to_c = light.position - pos
-        dist = np.linalg.norm(to_c, axis=1)
+        dist = norms3(to_c)
         w = to_c / np.maximum(dist, 1e-300)[:, None]
         sin_a = np.minimum(light.radius / np.maximum(dist, 1e-300), 1.0)
         z_light = dist - light.radius ** 2 / np.maximum(dist, 1e-300)

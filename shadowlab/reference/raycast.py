@@ -32,6 +32,7 @@ import weakref
 
 import numpy as np
 
+from ..core.numerics import norms3
 from ..scene.caches import per_scene_cache
 from ..scene.mesh import Scene
 from ..scene.view import Camera, Light, PointLight, SphereLight, hard_light
@@ -252,7 +253,7 @@ def render_gbuffer(scene: Scene, camera: Camera) -> GBuffer:
     pos = np.zeros((h * w, 3))
     pos[idx] = np.where((nd != 0)[:, None], o + t[:, None] * d, bary) + frame
     normal = np.zeros((h * w, 3))
-    ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+    ng /= np.maximum(norms3(ng, keepdims=True), 1e-300)
     view_dir = pos[idx] - camera.eye
     ng *= np.where(np.einsum("ij,ij->i", ng, view_dir) > 0, -1.0, 1.0)[:, None]
     normal[idx] = ng
@@ -389,7 +390,7 @@ def soft_reference(scene: Scene, gbuf: GBuffer, light: SphereLight, rays_per_pix
             disk_r = np.full(m, math.tan(math.radians(light.angular_radius_deg)))
         else:
             to_c = light.position - p
-            dist = np.linalg.norm(to_c, axis=1)
+            dist = norms3(to_c)
             w = to_c / dist[:, None]
             r = light.radius
             inside = dist <= r
@@ -402,7 +403,7 @@ def soft_reference(scene: Scene, gbuf: GBuffer, light: SphereLight, rays_per_pix
         target = centre[:, None] + disk_r[:, None, None] * (
             x[..., None] * e1[:, None] + y[..., None] * e2[:, None])      # [m, n, 3]
         dirs = target - p[:, None]
-        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+        dirs /= norms3(dirs, keepdims=True)
         above = np.einsum("mri,mi->mr", dirs, nrm[lo:hi]) > 0
         # only the samples above the tangent plane are traced (the others are blocked
         # anyway): a pixel facing away from the whole light costs no ray

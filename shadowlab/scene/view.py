@@ -13,6 +13,8 @@ from typing import Sequence, Union
 
 import numpy as np
 
+from ..core.numerics import norms3
+
 
 def _vec3(x, name: str) -> np.ndarray:
     a = np.asarray(x, dtype=np.float64).reshape(-1)
@@ -138,7 +140,7 @@ class Camera:
         ys = (1 - (np.arange(h) + 0.5) / h * 2) * t
         r, u, b = self.basis()
         d = xs[None, :, None] * r + ys[:, None, None] * u - b
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        d /= norms3(d, keepdims=True)
         return np.broadcast_to(self.eye, d.shape).copy(), d
 
     def replace(self, **changes) -> "Camera":
@@ -162,7 +164,7 @@ class PointLight:
     def to_light(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Unit directions [..., 3] from ``points`` [..., 3] to the light, and distances [...]."""
         d = self.position - points
-        dist = np.linalg.norm(d, axis=-1)
+        dist = norms3(d)
         return d / np.maximum(dist, 1e-300)[..., None], dist
 
 

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.capacity import bucket
+from ..core.numerics import norms3
 from ..scene.view import SphereLight
 
 GOLDEN_ITERS = 16       # golden-section steps of the capsule test
@@ -82,7 +83,7 @@ def blocker_cones(tri: np.ndarray, groups: np.ndarray | None, light: SphereLight
     else:
         L = light.position
         to_c = centre - L
-        dist = np.linalg.norm(to_c, axis=1)
+        dist = norms3(to_c)
         axis = to_c / np.maximum(dist, 1e-300)[:, None]
         R = light.radius
         always = R + rho >= dist
