@@ -58,6 +58,11 @@ PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "
                 "csm_min_area": 0.0}
 #: most (triangle, node) pairs tested in one call of the pair kernel
 PAIR_CHUNK = 1 << 20
+#: the least light-space area (texels) of a triangle that can cover a texel fully: the
+#: smallest triangle containing a unit square has area 2 (one containing the texel's
+#: circumscribed circle, 3 sqrt(3) / 2); the CSM skips smaller casters (exactly: they
+#: write no depth)
+COVERING_AREA = 2.0
 
 
 def _shadowed(points, scale, planes, bound, node, tri):
@@ -139,7 +144,8 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
                     "shadowed", "lit", "light_faces", "list_nodes", "list_length_max",
                     "list_length_per_pixel",
                     "list_nonempty_texels", "traced_fragments", "depth_culled_fragments",
-                    "csm_texels", "csm_culled", "csm_culled_per_pixel", "csm_false_shadows"),
+                    "csm_texels", "csm_small_casters", "csm_culled", "csm_culled_per_pixel",
+                    "csm_false_shadows"),
           stages=("samples", "setup", "light_setup", "csm", "build", "trace", "verify"),
           presets={"paper": PAPER_PRESET},
           options={
@@ -229,7 +235,7 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
             m_delta = _delta_slope(cam, delta_p) * m_world
 
         culled = np.zeros(s_count, bool)
-        csm_texels = 0
+        csm_texels = csm_small = 0
         with timer.stage("csm"):
             if prepass == "csm":
                 c_cam, c_setups, c_face, c_keys, c_delta, c_tau, c_m = (
@@ -242,9 +248,9 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
                     c_setups = [lr.setup_face(f, scene.triangles) for f in c_cam.faces]
                     c_tau = coverage_margin + lr.rounding_margin(dtype, extent, tw / csm_scale)
                     c_m = _delta_slope(c_cam, c_delta) * m_world
-                culled, csm_texels = _csm(c_cam, c_setups, samples, light_h, c_face, c_keys,
-                                          c_delta, c_m, ok_tri, coverage, csm_depth, c_tau,
-                                          cap_bias(scene, shadow_eps), csm_min_area)
+                culled, csm_texels, csm_small = _csm(
+                    c_cam, c_setups, samples, light_h, c_face, c_keys, c_delta, c_m, ok_tri,
+                    coverage, csm_depth, c_tau, cap_bias(scene, shadow_eps), csm_min_area)
 
         with timer.stage("build"):
             occupied = np.bincount(inv_all[~culled], minlength=len(keys_all)) > 0
@@ -290,7 +296,8 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
         "list_length_per_pixel": samples.scatter(length_per, fill=0),
         "list_nonempty_texels": int(len(lkeys)),
         "traced_fragments": int(traced), "depth_culled_fragments": int(depth_culled),
-        "csm_texels": int(csm_texels), "csm_culled": int(culled.sum()),
+        "csm_texels": int(csm_texels), "csm_small_casters": int(csm_small),
+        "csm_culled": int(culled.sum()),
         "csm_culled_per_pixel": samples.scatter(culled.astype(np.int64), fill=0),
         "csm_false_shadows": int(false_shadows)})
     return ShadowResult(lit, counters, dict(timer.times, total=timer.total))
@@ -369,7 +376,7 @@ def _empty_counters(shape) -> dict:
             "light_faces": 0, "list_nodes": 0, "list_length_max": 0,
             "list_length_per_pixel": zero_map.copy(),
             "list_nonempty_texels": 0, "traced_fragments": 0, "depth_culled_fragments": 0,
-            "csm_texels": 0, "csm_culled": 0, "csm_culled_per_pixel": zero_map.copy(),
+            "csm_texels": 0, "csm_small_casters": 0, "csm_culled": 0, "csm_culled_per_pixel": zero_map.copy(),
             "csm_false_shadows": 0}
 
 
@@ -412,7 +419,8 @@ def _csm_cull(slot, full, hi, centre, gslope, inv, delta_q, margin, *, slope, si
 
 def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri, test,
          depth_mode, tau, eps, min_area=0.0):
-    """bool [S] samples culled by the conservative shadow map, and its full texels.
+    """bool [S] samples culled by the conservative shadow map, its full texels, and the
+    casters (per face) too small to cover a texel (``COVERING_AREA``), not drawn.
     ``keys_inv``: the sorted texel keys [K] of the samples and each sample's index [S]."""
     r = cam.resolution[0]
     q, reaches = receiver_points(samples, light_h, eps)
@@ -428,7 +436,12 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
     # sample is lit (the reference's tfar = max(length - cut, 0)), so it is never culled.
     delta_q = np.where(reaches | ~np.isfinite(delta_q), -np.inf, delta_q)
     keys, inv = keys_inv
-    select = [ok_tri & s.ok & s.front & (light_area(s) >= min_area) for s in setups]
+    select, small = [], 0
+    for s in setups:
+        area, drawn = light_area(s), ok_tri & s.ok & s.front
+        covers = area >= COVERING_AREA * (1.0 - 1e-9)       # the slack: area's rounding
+        small += int(np.count_nonzero(drawn & ~covers))
+        select.append(drawn & covers & (area >= min_area))
     s_cap = bucket(samples.count)
     with lr.x64():
         fr = lr.raster(setups, keys, r, "inner", test, tau, select)
@@ -436,7 +449,7 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
             fr.slot, fr.covered, fr.hi, fr.centre, fr.slope, jnp.asarray(pad(inv, s_cap)),
             jnp.asarray(pad(delta_q, s_cap, fill=-np.inf)), jnp.asarray(pad(m_delta, s_cap)),
             slope=depth_mode == "slope", size=bucket(len(keys)))
-        return np.asarray(culled)[: samples.count], int(texels)
+        return np.asarray(culled)[: samples.count], int(texels), small
 
 
 def _verify(culled, samples, points, scale, planes, bound, num_triangles, dtype) -> int:
