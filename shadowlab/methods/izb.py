@@ -68,13 +68,14 @@ COVERING_AREA = 2.0
 def _shadowed(points, scale, planes, bound, node, tri):
     """bool [P]: the per-sample test of ``brute_force`` (the same expressions) on the
     pairs (node [P], tri [P])."""
-    p = points[node]
-    px, py, pz = p[:, 0], p[:, 1], p[:, 2]
-    pl = planes[tri]
-    e0 = px * pl[:, 0] + py * pl[:, 1] + pz * pl[:, 2] + pl[:, 3]
-    e1 = px * pl[:, 4] + py * pl[:, 5] + pz * pl[:, 6] + pl[:, 7]
-    e2 = px * pl[:, 8] + py * pl[:, 9] + pz * pl[:, 10] + pl[:, 11]
-    cap = px * pl[:, 12] + py * pl[:, 13] + pz * pl[:, 14] + pl[:, 15]
+    # one gather per element (planes[tri, k]), not a row gather sliced afterwards: XLA on
+    # the CPU materializes the [P, 16] rows then, and the pair test ran 2x slower
+    px, py, pz = (points[node, k] for k in range(3))
+    pl = [planes[tri, k] for k in range(16)]
+    e0 = px * pl[0] + py * pl[1] + pz * pl[2] + pl[3]
+    e1 = px * pl[4] + py * pl[5] + pz * pl[6] + pl[7]
+    e2 = px * pl[8] + py * pl[9] + pz * pl[10] + pl[11]
+    cap = px * pl[12] + py * pl[13] + pz * pl[14] + pl[15]
     return (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap * scale[node] < bound[tri])
 
 
@@ -89,10 +90,12 @@ def _pair_test(points, scale, planes, bound, node, tri, count):
 @jax.jit
 def _trace_count(slot, covered, lo, limit, length):
     """Depth culling of the outer fragments (``limit`` [K]: the farthest node's delta plus
-    its margin): (kept bool [C], pairs per fragment [C], traced, depth-culled, pairs)."""
+    its margin): (kept bool [C], pairs per fragment [C], traced, depth-culled, pairs,
+    kept fragments per list int32 [K]: the tests of each of its nodes)."""
     keep = covered & (lo < limit[slot])
     pairs = jnp.where(keep, length[slot], 0)
-    return keep, pairs, keep.sum(), (covered & ~keep).sum(), pairs.sum()
+    per_list = jnp.zeros(length.shape[0], jnp.int32).at[slot].add(keep.astype(jnp.int32))
+    return keep, pairs, keep.sum(), (covered & ~keep).sum(), pairs.sum(), per_list
 
 
 @jax.jit
@@ -102,18 +105,17 @@ def _exclusive_sum(x):
 
 @functools.partial(jax.jit, static_argnames=("capacity",))
 def _trace_pairs(tri, slot, first, pairs, offset, total, start, order, points, scale, planes,
-                 bound, shadow, tests, *, capacity):
+                 bound, shadow, *, capacity):
     """Pairs ``offset + arange(capacity)`` (of ``total``) of the fragments' runs (the run of
     fragment f starts at ``first[f]`` with ``pairs[f]`` nodes): every node of f's list
-    against f's triangle; ``shadow`` (int8 [S]) and ``tests`` (int32 [S]) accumulated."""
+    against f's triangle; ``shadow`` (int8 [S]) accumulated."""
     j = offset + jnp.arange(capacity, dtype=first.dtype)
     frag = lr.segment_owner(first, capacity, offset)
     valid = j < total
     pos = jnp.where(valid, start[slot[frag]] + j - first[frag], 0)
     node = order[pos]
     hit = _shadowed(points, scale, planes, bound, node, tri[frag]) & valid
-    return (shadow.at[node].max(hit.astype(jnp.int8)),
-            tests.at[node].add(valid.astype(jnp.int32)))
+    return shadow.at[node].max(hit.astype(jnp.int8))
 
 
 def pair_shadows(points, scale, planes, bound, node: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -349,7 +351,7 @@ class JaxEngine:
         """
         k_cap = bucket(len(lists.length))
         length = jnp.asarray(pad(lists.length, k_cap))
-        keep, pairs, traced, culled, total = _trace_count(
+        keep, pairs, traced, culled, total, per_list = _trace_count(
             frags.slot, frags.covered, frags.lo,
             jnp.asarray(pad(lists.maxd + lists.maxm, k_cap)), length)
         total = int(total)
@@ -357,14 +359,15 @@ class JaxEngine:
         start = jnp.asarray(pad(lists.start, k_cap))
         order = jnp.asarray(pad(lists.order, bucket(len(lists.order))))
         shadow = jnp.zeros(points.shape[0], jnp.int8)
-        tests = jnp.zeros(points.shape[0], jnp.int32)
         cap = bucket(min(total, PAIR_CHUNK), minimum=min(1024, PAIR_CHUNK))
         for offset in range(0, total, cap):
-            shadow, tests = _trace_pairs(frags.tri, frags.slot, first, pairs, offset, total,
-                                         start, order, points, scale, planes, bound, shadow,
-                                         tests, capacity=cap)
-        return (np.asarray(shadow[:count]).astype(bool),
-                np.asarray(tests[:count]).astype(np.int64), int(traced), int(culled))
+            shadow = _trace_pairs(frags.tri, frags.slot, first, pairs, offset, total, start,
+                                  order, points, scale, planes, bound, shadow, capacity=cap)
+        # every node of a list is tested once by each kept fragment of its texel (no
+        # scatter per pair)
+        tests = np.zeros(count, np.int64)
+        tests[lists.order] = np.repeat(np.asarray(per_list)[: len(lists.length)], lists.length)
+        return (np.asarray(shadow[:count]).astype(bool), tests, int(traced), int(culled))
 
 
 ENGINE = JaxEngine()
