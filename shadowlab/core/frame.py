@@ -39,6 +39,7 @@ import jax
 import numpy as np
 
 from .capacity import bucket, pad
+from .sorting import stable_argsort
 from ..reference.raycast import GBuffer, facing_samples, shadow_epsilon
 from ..scene.caches import per_scene_cache
 from ..scene.mesh import Scene
@@ -220,7 +221,7 @@ class Samples:
         y, x = np.divmod(self.index, self.shape[1])
         tiles_x = -(-self.shape[1] // tile)
         key = ((y // tile) * tiles_x + x // tile) * (tile * tile) + (y % tile) * tile + x % tile
-        return np.argsort(key, kind="stable")
+        return stable_argsort(key)
 
     def scatter(self, values: np.ndarray, fill=0) -> np.ndarray:
         """An image [H, W] with ``values[:count]`` at the sample pixels, ``fill`` elsewhere."""

@@ -40,6 +40,7 @@ import numpy as np
 from ..core.capacity import bucket, pad
 from ..core.frame import caster_terms, cap_bias, precision_mode, view_samples
 from ..core.numerics import norms3
+from ..core.sorting import stable_argsort
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
 from ..geometry.triangle_setup import shadow_volume_planes
@@ -331,7 +332,7 @@ class JaxEngine:
         """Lists of the samples with ``slot`` [S] >= 0 (their texel's list), ``delta`` [S]
         and depth ``margin`` [S] (float64), ``k`` lists, none of them empty."""
         nodes = np.flatnonzero(slot >= 0)
-        order = nodes[np.argsort(slot[nodes], kind="stable")]
+        order = nodes[stable_argsort(slot[nodes])]
         length = np.bincount(slot[order], minlength=k).astype(np.int64)
         start = np.cumsum(length) - length
         if len(order) == 0:

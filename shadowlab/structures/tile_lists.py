@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.capacity import bucket
+from ..core.sorting import stable_argsort
 from .cones import cone_hits_capsule
 
 TILE = 16               # tile side in pixels
@@ -159,7 +160,7 @@ def build_tile_lists(timer, group_cones: dict, triangle_cones: dict, members: np
         keep = hit.any(1)
         tri_t, tri_g, tri_h = tri_t[keep], tri_g[keep], hit[keep]
     with timer.stage("tile_lists"):
-        order = np.argsort(tri_t, kind="stable")
+        order = stable_argsort(tri_t)
         tri_t, tri_g, tri_h = tri_t[order], tri_g[order], tri_h[order]
         lengths = np.bincount(tri_t, minlength=n_tiles)
         starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
