@@ -283,12 +283,15 @@ def facing_samples(gbuf: GBuffer, light: Light) -> tuple[np.ndarray, np.ndarray,
         flat pixel indices int64 [S], positions float64 [S, 3], normals float64 [S, 3].
     """
     lh = hard_light(light).homogeneous
-    idx = np.flatnonzero(gbuf.valid)
-    p = gbuf.position.reshape(-1, 3)[idx]
-    n = gbuf.normal.reshape(-1, 3)[idx]
+    p, n = gbuf.position.reshape(-1, 3), gbuf.normal.reshape(-1, 3)
+    if gbuf.valid.all():                # no gather of every pixel before the test
+        idx = None
+    else:
+        idx = np.flatnonzero(gbuf.valid)
+        p, n = p[idx], n[idx]
     # n . (L.xyz - L.w p) > 0: the sign test needs no normalization.
-    keep = (n @ lh[:3] - lh[3] * np.einsum("ij,ij->i", n, p)) > 0
-    return idx[keep], p[keep], n[keep]
+    keep = np.flatnonzero((n @ lh[:3] - lh[3] * np.einsum("ij,ij->i", n, p)) > 0)
+    return (keep if idx is None else idx[keep]), p[keep], n[keep]
 
 
 def light_facing(gbuf: GBuffer, light: Light) -> np.ndarray:
