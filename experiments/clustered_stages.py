@@ -42,7 +42,8 @@ from shadowlab.scene.procedural import default_view, refit_clip
 from shadowlab.scene.view import Animation
 from shadowlab.structures.cluster_hierarchy import cluster_layout
 
-STAGES = ("samples", "setup", "build", "traverse", "merge")
+#: the method's stages, and ``host``: its time between them (every method reports it)
+STAGES = ("samples", "setup", "build", "traverse", "merge", "host")
 
 
 def _frames(scene, name, resolution, frames):
