@@ -104,12 +104,28 @@ def _exclusive_sum(x):
     return lr.running_sum(x) - x
 
 
+@functools.partial(jax.jit, static_argnames=("size",))
+def _kept_runs(keep, first, tri, slot, *, size):
+    """The kept fragments' run starts, triangles and list slots, compacted to ``size``
+    (the rest: runs that start beyond every pair, so they own none)."""
+    idx = jnp.nonzero(keep, size=size, fill_value=keep.shape[0])[0]
+    far = jnp.iinfo(first.dtype).max // 2
+    return (first.at[idx].get(mode="fill", fill_value=far),
+            tri.at[idx].get(mode="fill", fill_value=0),
+            slot.at[idx].get(mode="fill", fill_value=0))
+
+
 @functools.partial(jax.jit, static_argnames=("capacity",))
-def _trace_pairs(tri, slot, first, pairs, offset, total, start, order, points, scale, planes,
-                 bound, shadow, *, capacity):
-    """Pairs ``offset + arange(capacity)`` (of ``total``) of the fragments' runs (the run of
-    fragment f starts at ``first[f]`` with ``pairs[f]`` nodes): every node of f's list
-    against f's triangle; ``shadow`` (int8 [S]) accumulated."""
+def _trace_pairs(first_k, tri_k, slot_k, lo, offset, total, start, order, points, scale,
+                 planes, bound, shadow, *, capacity):
+    """Pairs ``offset + arange(capacity)`` (of ``total``) of the kept fragments' runs
+    (:func:`_kept_runs`; run f starts at ``first_k[f]``, run ``lo`` holds pair
+    ``offset``): every node of f's list against f's triangle; ``shadow`` (int8 [S])
+    accumulated. Only the ``capacity + 1`` runs from ``lo`` can hold the chunk's pairs
+    (every kept run has at least one), so only they are read."""
+    first = jax.lax.dynamic_slice_in_dim(first_k, lo, capacity + 1)
+    tri = jax.lax.dynamic_slice_in_dim(tri_k, lo, capacity + 1)
+    slot = jax.lax.dynamic_slice_in_dim(slot_k, lo, capacity + 1)
     j = offset + jnp.arange(capacity, dtype=first.dtype)
     frag = lr.segment_owner(first, capacity, offset)
     valid = j < total
@@ -361,9 +377,15 @@ class JaxEngine:
         order = jnp.asarray(pad(lists.order, bucket(len(lists.order))))
         shadow = jnp.zeros(points.shape[0], jnp.int8)
         cap = bucket(min(total, PAIR_CHUNK), minimum=min(1024, PAIR_CHUNK))
+        if total:
+            # each chunk reads only the runs that can hold its pairs, not every fragment
+            runs = _kept_runs(keep, first, frags.tri, frags.slot,
+                              size=bucket(int(traced) + cap + 1))
+            starts = np.asarray(runs[0][: int(traced)])
         for offset in range(0, total, cap):
-            shadow = _trace_pairs(frags.tri, frags.slot, first, pairs, offset, total, start,
-                                  order, points, scale, planes, bound, shadow, capacity=cap)
+            lo = int(np.searchsorted(starts, offset, side="right")) - 1
+            shadow = _trace_pairs(*runs, lo, offset, total, start, order, points, scale,
+                                  planes, bound, shadow, capacity=cap)
         # every node of a list is tested once by each kept fragment of its texel (no
         # scatter per pair)
         tests = np.zeros(count, np.int64)
