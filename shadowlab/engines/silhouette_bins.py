@@ -63,6 +63,7 @@ import functools
 import numpy as np
 
 from ..core.capacity import bucket, pad, run_offsets
+from ..core.sorting import stable_argsort
 
 TILE = 16           # about TILE x TILE pixels of samples per cell
 PAD_FACTOR = 16.0   # pad = PAD_FACTOR * eps * (|a| + |b|)^2 / |a x b| * 2 (1 + r^2)
@@ -353,7 +354,8 @@ def _cone_lines(pts: np.ndarray, which: np.ndarray, basis):
     """:func:`_screen_lines` of the cone facets of the primitives ``which`` (bool [K])
     of pts [K, P, 3]; the others get no valid line."""
     n_pairs = pts.shape[1] * (pts.shape[1] - 1) // 2
-    out = [np.zeros((len(pts), n_pairs)) for _ in range(3)] + [np.zeros((len(pts), n_pairs), bool)]
+    out = [np.zeros((len(pts), n_pairs)) for _ in range(3)]
+    out.append(np.zeros((len(pts), n_pairs), bool))
     if which.any():
         for full, part in zip(out, _screen_lines(*cone_facets(pts[which]), basis)):
             full[which] = part
@@ -433,9 +435,10 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
         empty[cut] = ~nonempty
     # no q lies outside the samples' box: a bounded box is cut to it (a primitive beside
     # every sample enters no cell, not the border cells its clamped range would reach)
-    inside = np.stack([np.maximum(box[:, 0], sample_box[0]), np.minimum(box[:, 1], sample_box[1]),
-                       np.maximum(box[:, 2], sample_box[2]), np.minimum(box[:, 3], sample_box[3])],
-                      axis=1)
+    inside = np.stack([np.maximum(box[:, 0], sample_box[0]),
+                       np.minimum(box[:, 1], sample_box[1]),
+                       np.maximum(box[:, 2], sample_box[2]),
+                       np.minimum(box[:, 3], sample_box[3])], axis=1)
     met = (inside[:, 0] <= inside[:, 1]) & (inside[:, 2] <= inside[:, 3])
     bounded_ok = ok & bounded
     box[bounded_ok] = inside[bounded_ok]
@@ -530,12 +533,12 @@ def _cell_lists(grid: "SampleGrid", spans: list, unique: bool):
     """
     gx, gy = grid.shape
     row, lo, hi, rank = (np.concatenate(x) for x in zip(*spans))
-    order = np.argsort(rank, kind="stable") if len(spans) > 1 else None
+    if len(spans) > 1:                  # (row, rank) order: by rank, then stably by row
+        order = stable_argsort(rank)
+        by_row = order[stable_argsort(row[order])]
+    else:
+        by_row = stable_argsort(row)
     small = np.int16 if max(gx, gy) < 2 ** 15 else np.int64
-    by_row = np.argsort(row.astype(small) if order is None else row[order].astype(small),
-                        kind="stable")
-    if order is not None:
-        by_row = order[by_row]
     row, lo, hi = (x[by_row].astype(small) for x in (row, lo, hi))
     rank = rank[by_row].astype(np.int32)
     pieces, counts = [], np.zeros((gx, gy), np.int64)

@@ -402,7 +402,8 @@ def _empty_counters(shape) -> dict:
             "light_faces": 0, "list_nodes": 0, "list_length_max": 0,
             "list_length_per_pixel": zero_map.copy(),
             "list_nonempty_texels": 0, "traced_fragments": 0, "depth_culled_fragments": 0,
-            "csm_texels": 0, "csm_small_casters": 0, "csm_culled": 0, "csm_culled_per_pixel": zero_map.copy(),
+            "csm_texels": 0, "csm_small_casters": 0, "csm_culled": 0,
+            "csm_culled_per_pixel": zero_map.copy(),
             "csm_false_shadows": 0}
 
 
