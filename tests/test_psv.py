@@ -133,6 +133,80 @@ def test_device_node_arrays_live_as_long_as_their_tree():
     assert probe() is None and len(psvm._DEVICE_NODES) == 0
 
 
+def test_copy_levels_cover_every_stack_in_use():
+    for k in (1, 2, 3, 12, 32, 63):
+        for stack_pointer_max in range(k + 1):
+            m = psvm._copy_levels(stack_pointer_max, k)
+            assert max(stack_pointer_max, 1) <= m <= k, (k, stack_pointer_max)
+            assert m == k or m & (m - 1) == 0, (k, stack_pointer_max)
+
+
+@pytest.mark.parametrize("query,depth,stack_size,chunk,tile", [
+    ("stack", False, 3, 1, None), ("stack", True, 32, 2, 1024), ("hybrid", True, 2, 1, 1024)])
+def test_compactions_and_spare_stacks_keep_every_result(monkeypatch, request, query, depth,
+                                                        stack_size, chunk, tile):
+    """A compaction moves only the stack levels in use, into the tree's spare stack; a
+    query on a reused tree starts from the stacks the previous one left (never
+    cleared). With chunks of one or two steps (a compaction whenever a bucket shrinks),
+    spares poisoned with random node ids, every lane's result and counters equal one
+    long chunk's (no compaction) and, on a subset, the plain loop's. ``tile``: lanes run
+    in compute tiles of that many lanes (each on a copy of its state and stack)."""
+    import jax.numpy as jnp
+
+    if tile:
+        monkeypatch.setattr(psvm, "TILE", tile)
+        psvm._chunk_kernel.cache_clear()        # kernels traced with the default tile
+        request.addfinalizer(psvm._chunk_kernel.cache_clear)
+    tiles = []
+    real_tile = psvm.tile_size
+    monkeypatch.setattr(psvm, "tile_size",
+                        lambda b: tiles.append((b, real_tile(b))) or tiles[-1][1])
+
+    scene, light, gbuf, _ = _scene("fuzzy")
+    samples = view_samples(gbuf, light)
+    light_h = sl.scene.view.hard_light(light).homogeneous
+    with precision_mode("float32") as dtype:
+        tree, scale, _ = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=dtype,
+                                         shadow_eps=1e-5, bias="receiver", order="random",
+                                         seed=0, wedge="conservative", classify_ulps=64)
+    # 3,400 lanes: a first bucket of 3,584 (7 x 512) lanes, which later tiles of 1,024
+    # do not divide (the stack buffer is rounded up to whole tiles)
+    n = 3400
+    key = tt.light_key(samples.position, light_h).astype(np.float32)[:n]
+    pts = samples.position.astype(np.float32)[:n]
+    sc = scale.astype(np.float32)[:n]
+    kw = dict(query=query, depth_test=depth, wedge="conservative", stack_size=stack_size)
+    whole = psvm.run_query(tree, pts, sc, key, light_h, chunk=100_000, **kw)
+    assert whole["chunks"] <= 2          # hybrid: the stack-only step, then the full one
+    levels = []
+    real = psvm._compact_kernel
+    monkeypatch.setattr(psvm, "_compact_kernel",
+                        lambda nb, k, n: levels.append(n) or real(nb, k, n))
+    first = psvm.run_query(tree, pts, sc, key, light_h, chunk=chunk, **kw)
+    spare = psvm._stack_buffers(tree)
+    assert spare and levels
+    if stack_size == 32:
+        assert any(n < stack_size for n in levels)             # partial copies ran
+    rng = np.random.default_rng(1)
+    assert all(len(held) == 2 for held in spare.values())    # the stack and the spare
+    for size, held in spare.items():
+        spare[size] = [jnp.asarray(rng.integers(0, tree.plane.shape[0], size, dtype=np.int32))
+                       for _ in held]
+    again = psvm.run_query(tree, pts, sc, key, light_h, chunk=chunk, **kw)
+    assert bool(tile) == any(t < b for b, t in tiles)       # tiled runs were traced
+    for got in (first, again):
+        assert got["chunks"] > 10
+        for name in ("shadow", "visited", "stack_max", "overflows", "switches"):
+            np.testing.assert_array_equal(got[name], whole[name], err_msg=name)
+    assert whole["stack_max"].max() >= min(stack_size, 8)     # deep stacks in play
+    for i in rng.choice(n, 60, replace=False):
+        lit, visited, smax, ov, sw = _plain_query(tree, pts[i], sc[i], key[i], light_h, query,
+                                                  depth, stack_size, "conservative")
+        assert (lit, visited, smax) == (not again["shadow"][i], again["visited"][i],
+                                        again["stack_max"][i]), i
+        assert (ov, sw) == (again["overflows"][i], again["switches"][i]), i
+
+
 @pytest.mark.parametrize("tile", [5, 8])
 def test_lane_tiles_keep_every_result(tile, precision):
     """``lane_tile`` only regroups the query's lanes: the lit mask and every counter

@@ -150,11 +150,12 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
     Layout for speed on XLA/CPU (measured, docs/psv.md): every node field is its own
     1D array read with one ``promise_in_bounds`` gather per field (row gathers of an
     [N, 4] array and clamped gathers cost 1.5-2x more), the per-lane stack is one flat
-    array indexed ``level * lanes + lane`` (entries of one level are contiguous), and
-    the state is donated so the loop updates it in place. Every output of the loop body
-    is a separate fusion that XLA/CPU recomputes the whole step for, so the state is
-    packed into as few arrays as possible (a node-and-flags word, a stack-pointer,
-    maximum and count word, the stack, the visit count).
+    array, tile-major ([tiles, K + 1, tile], row K scratch; entries of one level of a
+    tile are contiguous) in the first (K + 1) * lanes entries of a buffer sized for the
+    query's first bucket, and the state is donated so the loop updates it in place.
+    Every output of the loop body is a separate fusion that XLA/CPU recomputes the whole
+    step for, so the state is packed into as few arrays as possible (a node-and-flags
+    word, a stack-pointer, maximum and count word, the stack, the visit count).
 
     ``fast`` (hybrid only): the stack-mode-only step, for buckets where no lane is in
     stackless mode: a lane that would switch to stackless mode *stalls* instead (no
@@ -342,8 +343,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
 
     def run(state, tree, pts, scale, key, light, tol):
         # Lanes run in tiles of at most TILE (a loop over tiles, each running all
-        # ``steps``), so that a tile's state and stack stay in cache during its steps;
-        # the stack is tile-major ([tiles, K + 1, tile], see :func:`_compact_kernel`).
+        # ``steps``), so that a tile's state and stack stay in cache during its steps.
         b = pts.shape[0]
         t = tile_size(b)
         px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
@@ -351,13 +351,15 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             return run_tile(state, tree, px, py, pz, scale, key, light, tol)
 
         def tile(i, st):
-            lo = i * t
-            cut = lambda a, size=t: jax.lax.dynamic_slice_in_dim(a, lo * (size // t), size)  # noqa: E731
-            sub = {name: cut(v, v.shape[0] // b * t) for name, v in st.items()}
+            width = {name: (k + 1) * t if name == "stack" else t for name in st}
+            sub = {name: jax.lax.dynamic_slice_in_dim(v, i * width[name], width[name])
+                   for name, v in st.items()}
+            cut = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=i * t,
+                                    slice_size=t)
             sub = run_tile(sub, tree, cut(px), cut(py), cut(pz), cut(scale), cut(key), light,
                            tol)
-            return {name: jax.lax.dynamic_update_slice_in_dim(
-                st[name], v, lo * (v.shape[0] // t), 0) for name, v in sub.items()}
+            return {name: jax.lax.dynamic_update_slice_in_dim(st[name], v, i * width[name], 0)
+                    for name, v in sub.items()}
 
         return jax.lax.fori_loop(0, b // t, tile, state)
 
@@ -409,23 +411,6 @@ def _pack(node, twice, sl, shadow, done):
     """The per-lane state word: node | twice | stackless mode | shadow | done bits."""
     return ((node & NODE_MASK) | (twice.astype(jnp.int32) << 27) | (sl.astype(jnp.int32) << 28)
             | (shadow.astype(jnp.int32) << 29) | (done.astype(jnp.int32) << 30))
-
-
-def init_state(b: int, live: int, root: int, query: str, stack_size: int) -> dict:
-    """The query state of ``b`` lanes (the first ``live`` real), all at the root.
-
-    ``word`` packs node, flags (see :func:`_pack`); ``stats`` packs the stack pointer,
-    the maximum stack use and the overflow (stack) or switch (hybrid) count.
-    """
-    done = np.arange(b) >= (live if root >= 0 else 0)
-    s = {"word": (np.int32(max(root, 0)) | (done.astype(np.int32) << 30)).astype(np.int32),
-         "visited": np.zeros(b, np.int32)}
-    if query != "stackless":
-        s.update(stack=np.zeros((max(stack_size, 1) + 1) * b, np.int32),
-                 stats=np.zeros(b, np.int32))
-    if query == "hybrid":
-        s["ret"] = np.full(b, -1, np.int32)
-    return s
 
 
 def unpack_state(s: dict) -> dict:
@@ -480,45 +465,101 @@ def device_node_arrays(tree: tt.TopTree, rows: bool) -> tuple:
 
 
 @functools.lru_cache(maxsize=None)
-def _init_kernel(b: int, query: str, k: int):
-    """Jitted: the query state of ``b`` lanes, the first ``live`` at node ``root``, on the
-    device (see :func:`init_state`)."""
-    def init(live, root):
+def _init_kernel(b: int, query: str):
+    """Jitted: the query state of ``b`` lanes, the first ``live`` at node ``root``.
+
+    ``word`` packs node and flags (see :func:`_pack`), ``visited`` counts node visits;
+    the stack queries add ``stats`` (stack pointer, maximum stack use, overflow or
+    switch count) and ``stack`` [(K + 1) * b], hybrid ``ret`` (the node it switched at).
+    The stack buffer is passed in and donated, not cleared: a lane reads only the levels
+    below its stack pointer, which it wrote itself, and the scratch row K, whose value
+    it discards.
+    """
+    def init(live, root, stack):
         done = jnp.arange(b, dtype=jnp.int32) >= live
         s = {"word": root | (done.astype(jnp.int32) << 30), "visited": jnp.zeros(b, jnp.int32)}
         if query != "stackless":
-            s.update(stack=jnp.zeros((k + 1) * b, jnp.int32), stats=jnp.zeros(b, jnp.int32))
+            s.update(stack=stack, stats=jnp.zeros(b, jnp.int32))
         if query == "hybrid":
             s["ret"] = jnp.full(b, -1, jnp.int32)
         return s
-    return jax.jit(init)
+    return jax.jit(init, donate_argnums=2)
 
 
 @functools.lru_cache(maxsize=None)
-def _compact_kernel(nb: int, k: int):
+def _compact_kernel(nb: int, k: int, levels: int):
     """Jitted: lanes ``keep[:live]`` of every state array and of the per-lane inputs
-    (points, scale, key) moved to the front of ``nb`` lanes; the rest are done."""
-    def compact(state, dev, keep, live):
-        b = state["word"].shape[0]
+    (points, scale, key) moved to the front of ``nb`` lanes; the rest are done.
+
+    The stack (passed apart from the state; tile-major in its first (K + 1) * b
+    entries) is written into ``dest`` (a buffer of the same size, donated), tile-major
+    for ``nb`` lanes, and only the kept lanes' first ``levels`` levels (no kept lane's
+    stack pointer is above ``levels``: the caller's bound; the levels above it and the
+    scratch row are never read before written). (In place, within one buffer, XLA/CPU
+    fuses the gather into the update and copies the whole buffer twice to do so.)
+    """
+    def compact(state, stack, dest, dev, keep, live):
         valid = jnp.arange(nb, dtype=jnp.int32) < live
 
         def g(a, i):
             return a.at[i].get(mode="promise_in_bounds")
 
-        out = {}
-        for name, v in state.items():
-            if name == "stack":
-                t, t2 = tile_size(b), tile_size(nb)
-                base = (keep // t) * ((k + 1) * t) + keep % t
-                idx = (base.reshape(nb // t2, 1, t2)
-                       + (jnp.arange(k + 1, dtype=jnp.int32) * t).reshape(1, k + 1, 1))
-                out[name] = g(v, idx.reshape(-1))
-            else:
-                out[name] = g(v, keep)
+        out = {name: g(v, keep) for name, v in state.items()}
         out["word"] = jnp.where(valid, out["word"], DONE)
+        if stack is not None:
+            b, size = state["word"].shape[0], dest.shape[0]
+            t, t2 = tile_size(b), tile_size(nb)
+            base = (keep // t) * ((k + 1) * t) + keep % t
+            idx = (base.reshape(nb // t2, 1, t2)
+                   + (jnp.arange(levels, dtype=jnp.int32) * t).reshape(1, levels, 1))
+            moved = g(stack, idx)                                     # [nb / t2, levels, t2]
+            if t2 == nb:                            # one tile: levels * nb leading entries
+                out["stack"] = jax.lax.dynamic_update_slice(dest, moved.reshape(-1), (0,))
+            else:       # t2 divides TILE, which divides the buffer's lanes (stack_buffer_size)
+                assert size % ((k + 1) * t2) == 0
+                out["stack"] = jax.lax.dynamic_update_slice(
+                    dest.reshape(size // ((k + 1) * t2), k + 1, t2), moved, (0, 0, 0)).reshape(-1)
         pts, scale, key = dev
         return out, [g(pts, keep), g(scale, keep), jnp.where(valid, g(key, keep), jnp.inf)]
-    return jax.jit(compact)
+    return jax.jit(compact, donate_argnums=2)
+
+
+_STACK_BUFFERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _stack_buffers(tree: tt.TopTree) -> dict:
+    """Spare stacks of the queries on ``tree``, {(K + 1) * lanes: [device int32 arrays]}:
+    a query takes its two stacks (the one its lanes use and the one a compaction writes
+    into) from here, or clears new ones, and puts them back when done, so that the
+    queries of a reused tree (``reuse_tree``) neither clear nor allocate stacks (at 1M
+    lanes and K = 32, 138 MB each, cleared in 40-55 ms). At most two per stack size
+    and image size; they live as long as the tree."""
+    return _STACK_BUFFERS.setdefault(tree, {})
+
+
+def stack_buffer_size(b: int, k: int) -> int:
+    """Entries of a stack buffer for a first bucket of ``b`` lanes and ``k`` levels: room
+    for (K + 1) levels of ``b`` lanes, or of ``b`` rounded up to a multiple of TILE when
+    the lanes run in tiles, so that every later bucket's tile-major layout divides it."""
+    return (k + 1) * (b if b <= TILE else -(-b // TILE) * TILE)
+
+
+def _take_stack(spare: dict, size: int):
+    held = spare.get(size)
+    return held.pop() if held else jnp.zeros(size, jnp.int32)
+
+
+def _give_stack(spare: dict, buf) -> None:
+    if buf is not None:
+        held = spare.setdefault(buf.shape[0], [])
+        if len(held) < 2:
+            held.append(buf)
+
+
+def _copy_levels(stack_pointer_max: int, k: int) -> int:
+    """Stack levels a compaction copies: the kept lanes' largest stack pointer, rounded
+    up to a power of two (few compiled sizes), at most ``k``; at least 1."""
+    return min(k, 1 << max(int(stack_pointer_max) - 1, 0).bit_length())
 
 
 def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.ndarray,
@@ -577,13 +618,18 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         dev = [jnp.asarray(a) for a in cur]
         del cur
         live0 = s_count if tree.root >= 0 else 0
-    state = timer.run("query_setup", _init_kernel(b, query, k), jnp.int32(live0),
-                      jnp.int32(max(tree.root, 0)))
+    with timer.stage("query_setup"):
+        spare = _stack_buffers(tree) if query != "stackless" else {}
+        stack = (_take_stack(spare, stack_buffer_size(b, k)) if query != "stackless"
+                 else None)
+    state = timer.run("query_setup", _init_kernel(b, query), jnp.int32(live0),
+                      jnp.int32(max(tree.root, 0)), stack)
     fast = None
     if query == "hybrid":
         fast = _chunk_kernel(query, depth_test, wedge, stack_size, "lose", stackless_cap,
                              edge_tie, chunk, bool(light_h[3] == 0), True)
     use_fast = fast is not None
+    dest = None
     while True:
         live = len(lane_id)
         args = (state, treeargs, *dev, light, tol)
@@ -611,10 +657,18 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
                 break
             lane_id = lane_id[keep]
             keep_d = jnp.asarray(pad(keep.astype(np.int32), nb))
+            levels = _copy_levels(np.max(host["stats"][keep] & 63), k) if "stats" in host else 0
+            if "stack" in state and dest is None:
+                dest = _take_stack(spare, state["stack"].shape[0])
         # On the device: no host copy of the stack, no transfer back.
-        state, dev = timer.run("query_compact", _compact_kernel(nb, k), state, dev, keep_d,
-                               jnp.int32(len(keep)))
+        rest = {name: v for name, v in state.items() if name != "stack"}
+        old = state.get("stack")
+        state, dev = timer.run("query_compact", _compact_kernel(nb, k, levels), rest, old, dest,
+                               dev, keep_d, jnp.int32(len(keep)))
+        dest = old                   # the next compaction writes into the stack it left
         b = nb
+    _give_stack(spare, state.get("stack"))
+    _give_stack(spare, dest)
     out["chunks"] = n_chunks
     return out
 
