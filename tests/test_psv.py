@@ -133,6 +133,20 @@ def test_device_node_arrays_live_as_long_as_their_tree():
     assert probe() is None and len(psvm._DEVICE_NODES) == 0
 
 
+def _query_inputs(scene, light, gbuf):
+    """The float32 tree of the methods' defaults and the query's inputs: (tree, samples,
+    points [S, 3], bias scale [S], depth keys [S], homogeneous light [4])."""
+    samples = view_samples(gbuf, light)
+    light_h = sl.scene.view.hard_light(light).homogeneous
+    with precision_mode("float32") as dtype:
+        tree, scale, _ = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=dtype,
+                                         shadow_eps=1e-5, bias="receiver", order="random",
+                                         seed=0, wedge="conservative", classify_ulps=64)
+    key = tt.light_key(samples.position, light_h).astype(np.float32)
+    return (tree, samples, samples.position.astype(np.float32), scale.astype(np.float32),
+            key, light_h)
+
+
 def test_copy_levels_cover_every_stack_in_use():
     for k in (1, 2, 3, 12, 32, 63):
         for stack_pointer_max in range(k + 1):
@@ -162,19 +176,11 @@ def test_compactions_and_spare_stacks_keep_every_result(monkeypatch, request, qu
     monkeypatch.setattr(psvm, "tile_size",
                         lambda b: tiles.append((b, real_tile(b))) or tiles[-1][1])
 
-    scene, light, gbuf, _ = _scene("fuzzy")
-    samples = view_samples(gbuf, light)
-    light_h = sl.scene.view.hard_light(light).homogeneous
-    with precision_mode("float32") as dtype:
-        tree, scale, _ = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=dtype,
-                                         shadow_eps=1e-5, bias="receiver", order="random",
-                                         seed=0, wedge="conservative", classify_ulps=64)
+    tree, samples, pts, sc, key, light_h = _query_inputs(*_scene("fuzzy")[:3])
     # 3,400 lanes: a first bucket of 3,584 (7 x 512) lanes, which later tiles of 1,024
     # do not divide (the stack buffer is rounded up to whole tiles)
     n = 3400
-    key = tt.light_key(samples.position, light_h).astype(np.float32)[:n]
-    pts = samples.position.astype(np.float32)[:n]
-    sc = scale.astype(np.float32)[:n]
+    pts, sc, key = pts[:n], sc[:n], key[:n]
     kw = dict(query=query, depth_test=depth, wedge="conservative", stack_size=stack_size)
     whole = psvm.run_query(tree, pts, sc, key, light_h, chunk=100_000, **kw)
     assert whole["chunks"] <= 2          # hybrid: the stack-only step, then the full one
@@ -347,15 +353,7 @@ def test_counters_against_plain_loop(method, query, depth, stack):
     scene, light, gbuf, _ = _scene("sphere_grid", res=24)
     kw = {} if query == "stackless" else {"stack_size": stack}
     r = sl.compute_shadows(scene, gbuf, light, method=method, **kw)
-    samples = view_samples(gbuf, light)
-    light_h = sl.scene.view.hard_light(light).homogeneous
-    with precision_mode("float32") as dtype:
-        tree, scale, _ = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=dtype,
-                                         shadow_eps=1e-5, bias="receiver", order="random",
-                                         seed=0, wedge="conservative", classify_ulps=64)
-    key = tt.light_key(samples.position, light_h).astype(np.float32)
-    pts = samples.position.astype(np.float32)
-    sc = scale.astype(np.float32)
+    tree, samples, pts, sc, key, light_h = _query_inputs(scene, light, gbuf)
     got = {k: r.counters[k][np.unravel_index(samples.index, gbuf.valid.shape)]
            for k in r.counters if k.endswith("_per_pixel")}
     lit = r.lit.reshape(-1)[samples.index]

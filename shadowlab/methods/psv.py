@@ -706,8 +706,10 @@ _COMMON = {
     "reuse_tree": Option(False, "keep the TOP tree for the next call with the same scene, "
                          "light and build options (a static light and geometry: the tree "
                          "depends on neither camera nor samples unless frustum_culling is "
-                         "on, then on the camera too); off: every call builds, as the "
-                         "papers time a frame", allowed=(False, True)),
+                         "on, then on the camera too), with its queries' two stack "
+                         "buffers (2 x 138 MB at 1M samples and stack_size 32); off: "
+                         "every call builds, as the papers time a frame",
+                         allowed=(False, True)),
 }
 
 #: options the TOP tree depends on (besides the scene, the light and the precision)
