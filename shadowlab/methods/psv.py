@@ -414,12 +414,14 @@ def _pack(node, twice, sl, shadow, done):
 
 
 def unpack_state(s: dict) -> dict:
-    """NumPy counters of a state: done, shadow, visited, stack_max, overflows, switches."""
+    """NumPy counters of a state: done, shadow, visited, stack_pointer, stack_max,
+    overflows, switches."""
     w = np.asarray(s["word"])
     out = {"done": (w & DONE) != 0, "shadow": (w & SHADOW) != 0,
            "visited": np.asarray(s["visited"])}
     if "stats" in s:
         st = np.asarray(s["stats"])
+        out["stack_pointer"] = st & 63
         out["stack_max"] = (st >> 6) & 63
         out["overflows" if "ret" not in s else "switches"] = st >> 12
     return out
@@ -619,9 +621,10 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         del cur
         live0 = s_count if tree.root >= 0 else 0
     with timer.stage("query_setup"):
-        spare = _stack_buffers(tree) if query != "stackless" else {}
-        stack = (_take_stack(spare, stack_buffer_size(b, k)) if query != "stackless"
-                 else None)
+        spare, stack, has_stack = {}, None, query != "stackless"
+        if has_stack:
+            spare = _stack_buffers(tree)
+            stack = _take_stack(spare, stack_buffer_size(b, k))
     state = timer.run("query_setup", _init_kernel(b, query), jnp.int32(live0),
                       jnp.int32(max(tree.root, 0)), stack)
     fast = None
@@ -657,9 +660,11 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
                 break
             lane_id = lane_id[keep]
             keep_d = jnp.asarray(pad(keep.astype(np.int32), nb))
-            levels = _copy_levels(np.max(host["stats"][keep] & 63), k) if "stats" in host else 0
-            if "stack" in state and dest is None:
-                dest = _take_stack(spare, state["stack"].shape[0])
+            levels = 0
+            if has_stack:
+                levels = _copy_levels(counts["stack_pointer"][keep].max(), k)
+                if dest is None:
+                    dest = _take_stack(spare, state["stack"].shape[0])
         # On the device: no host copy of the stack, no transfer back.
         rest = {name: v for name, v in state.items() if name != "stack"}
         old = state.get("stack")
