@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from shadowlab.core.capacity import bucket, pad, retry_on_overflow
+from shadowlab.core.capacity import (INT32_MAX, CapacityError, bucket, check_int32, pad,
+                                     retry_on_overflow, wide_add, wide_min, wide_total)
 
 
 def _sizes(steps, limit):
@@ -105,3 +106,36 @@ def test_run_offsets_count_within_each_run():
 
     assert run_offsets([2, 0, 3, 1]).tolist() == [0, 1, 0, 1, 2, 0]
     assert run_offsets([]).tolist() == []
+
+
+@pytest.mark.parametrize("low_bits", [2, 24])
+def test_wide_counters_sum_past_int32_exactly(low_bits):
+    """Increments whose int32 sum wraps several times: the two-word totals equal Python's
+    integers, and ``wide_min`` equals min(total, limit) along the way."""
+    rng = np.random.default_rng(1)
+    inc = rng.integers(0, 2 ** 21, (3000, 3)).astype(np.int32)
+    inc[:, 0] = 2 ** 21 - 1                       # column 0 alone reaches 6.3e9
+    limit = 5_000_000
+
+    @jax.jit
+    def run(inc):
+        def body(i, c):
+            wide, mins = c
+            wide = wide_add(wide, inc[i], low_bits)
+            return wide, mins.at[i].set(wide_min(wide, limit, low_bits))
+        return jax.lax.fori_loop(0, inc.shape[0], body,
+                                 (jnp.zeros((2, 3), jnp.int32), jnp.zeros((3000, 3), jnp.int32)))
+
+    wide, mins = run(jnp.asarray(inc))
+    want = np.cumsum(inc.astype(np.int64), axis=0)
+    assert want[-1, 0] > 2 * INT32_MAX
+    np.testing.assert_array_equal(wide_total(wide, low_bits), want[-1])
+    np.testing.assert_array_equal(np.asarray(mins), np.minimum(want, limit))
+
+
+def test_check_int32_names_the_quantity_and_the_remedy():
+    assert check_int32(INT32_MAX, "entries", "render less") == INT32_MAX
+    with pytest.raises(CapacityError, match=r"entries: 2,147,483,648 exceeds .*render less"):
+        check_int32(INT32_MAX + 1, "entries", "render less")
+    with pytest.raises(CapacityError):
+        wide_min(jnp.zeros((2, 1), jnp.int32), INT32_MAX - 100)   # its sum could wrap

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import shadowlab as sl
+from shadowlab.core.capacity import CapacityError
 from shadowlab.methods import psv as psvm
 from shadowlab.structures import top_tree as tt
 from shadowlab.core.frame import precision_mode, view_samples
@@ -145,6 +146,25 @@ def _query_inputs(scene, light, gbuf):
     key = tt.light_key(samples.position, light_h).astype(np.float32)
     return (tree, samples, samples.position.astype(np.float32), scale.astype(np.float32),
             key, light_h)
+
+
+def test_limits_of_the_packed_lane_state_are_refused(monkeypatch):
+    """A lane's state word holds a node id in 27 bits and its overflow count in 19: a tree
+    or a lane beyond them is refused with a clear error, never wrapped (limits lowered
+    here to the tree and the query at hand)."""
+    tree, samples, pts, sc, key, light_h = _query_inputs(*_scene("fuzzy")[:3])
+    pts, sc, key = pts[:2000], sc[:2000], key[:2000]
+    kw = dict(query="stack", depth_test=True, wedge="conservative", stack_size=4)
+    visited = int(psvm.run_query(tree, pts, sc, key, light_h, **kw)["visited"].max())
+    monkeypatch.setattr(psvm, "COUNT_MAX", visited)
+    psvm.run_query(tree, pts, sc, key, light_h, **kw)             # exact up to the limit
+    monkeypatch.setattr(psvm, "COUNT_MAX", visited - 1)
+    with pytest.raises(CapacityError, match=f"visited {visited:,} nodes"):
+        psvm.run_query(tree, pts, sc, key, light_h, **kw)
+    psvm.run_query(tree, pts, sc, key, light_h, **dict(kw, query="stackless"))  # no count
+    monkeypatch.setattr(psvm, "NODE_MASK", tree.plane.shape[0] - 2)
+    with pytest.raises(CapacityError, match=f"{tree.plane.shape[0]:,} nodes"):
+        psvm.run_query(tree, pts, sc, key, light_h, **kw)
 
 
 def test_copy_levels_cover_every_stack_in_use():

@@ -189,3 +189,18 @@ def test_count_below_equals_a_search_per_segment():
     got = bins._count_below(values, starts, lengths, bound)
     want = [np.searchsorted(values[s: s + n], b) for s, n, b in zip(starts, lengths, bound)]
     np.testing.assert_array_equal(got, want)
+
+
+def test_lists_int32_offsets_cannot_address_are_refused(monkeypatch):
+    """The binned kernels read the cell lists at int32 offsets: lists longer than that
+    are refused with an error naming them and the way out (bins='off'), never wrapped.
+    The limit is lowered here to a few hundred entries; bins='off' still runs."""
+    from shadowlab.core import capacity
+    scene, gbuf, light, full = _unbinned_small_grid("zpass", "float32")
+    monkeypatch.setattr(capacity, "INT32_MAX", 300)
+    with pytest.raises(capacity.CapacityError, match="cell list entries.*bins='off'"):
+        sl.compute_shadows(scene, gbuf, light, method="silhouette", bins="screen",
+                           stencil="zpass", precision="float32")
+    again = sl.compute_shadows(scene, gbuf, light, method="silhouette", bins="off",
+                               stencil="zpass", precision="float32")
+    assert np.array_equal(again.lit, full.lit)

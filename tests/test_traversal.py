@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from shadowlab.core import capacity
 from shadowlab.engines import traversal as tv
 
 D = 3
@@ -165,6 +166,58 @@ def test_engine_visits_the_same_nodes_as_a_python_loop(passes, expand_level, wav
     pushed = np.array(want["pushed"], np.int64).reshape(-1, 2)
     np.testing.assert_array_equal(got.pass2_items, pushed[:, 0])
     np.testing.assert_array_equal(got.pass2_nodes, pushed[:, 1])
+
+
+@pytest.fixture
+def two_bit_counters(monkeypatch):
+    """The engine's two-word counters with 2 low bits: every few increments carry."""
+    tv.pass_kernel.cache_clear()
+    monkeypatch.setattr(capacity, "WIDE_LOW_BITS", 2)
+    yield
+    tv.pass_kernel.cache_clear()         # no kernel traced with 2 bits outlives the test
+
+
+@pytest.mark.parametrize("passes,expand_level,wave,prune", [(1, 1, None, False),
+                                                            (2, 1, 16, True)])
+def test_counters_that_carry_keep_every_total(two_bit_counters, passes, expand_level, wave,
+                                              prune):
+    """The counters, leaf visits and pushed jobs are two-word totals (so a frame's node
+    tests may pass 2**31): with a carry every 4 counts they still equal the Python loop."""
+    cells, masks, qa, qb, may = _problem()
+    data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
+            "qa": jnp.asarray(qa), "qb": jnp.asarray(qb), "may_accept": jnp.asarray(may)}
+    tv._CAPS.clear()
+    got = tv.traverse(RangeTests(), data, data["rows"], np.arange(len(qa), dtype=np.int32),
+                      jnp.zeros((N_ROWS, 32), bool),
+                      (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
+                      passes=passes, expand_level=expand_level, wave=wave, prune=prune)
+    want = _reference(masks, qa, qb, may, passes=passes, expand_level=expand_level,
+                      wave=wave, prune=prune)
+    assert min(want["counts"]) > 4 and want["leaf_visits"] > 4
+    np.testing.assert_array_equal(got.counts, want["counts"])
+    assert got.leaf_visits == want["leaf_visits"]
+    pushed = np.array(want["pushed"], np.int64).reshape(-1, 2)
+    assert passes == 1 or len(pushed) > 4
+    np.testing.assert_array_equal(got.pass2_items, pushed[:, 0])
+    np.testing.assert_array_equal(got.pass2_nodes, pushed[:, 1])
+
+
+def test_a_frontier_whose_children_int32_cannot_count_is_refused():
+    """A frontier bucket of 2**26 entries (2**31 children) is refused with a clear error
+    before anything is allocated, not run with wrapping prefix sums."""
+    cells, masks, qa, qb, may = _problem()
+    data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
+            "qa": jnp.asarray(qa), "qb": jnp.asarray(qb), "may_accept": jnp.asarray(may)}
+    tv._CAPS.clear()
+    tv._CAPS[(RangeTests(), False, 0, D + 1)] = 2 ** 26
+    try:
+        with pytest.raises(capacity.CapacityError, match="frontier.*prune"):
+            tv.traverse(RangeTests(), data, data["rows"], np.arange(len(qa), dtype=np.int32),
+                        jnp.zeros((N_ROWS, 32), bool),
+                        (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
+                        passes=1, expand_level=1, wave=None, prune=False)
+    finally:
+        tv._CAPS.clear()
 
 
 def test_compaction_keeps_entry_major_child_minor_order():

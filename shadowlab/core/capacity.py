@@ -8,6 +8,11 @@ problem size. When a kernel cannot know its output size in advance, it writes at
 with a larger bucket until nothing was dropped (the neighbour-list pattern of jax-md:
 allocate, detect overflow, reallocate). :func:`run_offsets` expands per-item counts
 into the exact-size lists (CSR) that such work is built from.
+
+Kernels index and count in int32 (JAX's default integer without x64): a size that an
+int32 cannot hold is refused by :func:`check_int32` with :class:`CapacityError` before
+any kernel runs, never wrapped; counters that sum over a whole frame use the two-word
+:func:`wide_add` (:func:`wide_total` reads them back as exact int64 values).
 """
 
 from __future__ import annotations
@@ -15,6 +20,58 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+
+
+INT32_MAX = int(np.iinfo(np.int32).max)
+
+
+class CapacityError(OverflowError):
+    """A size the int32 indices of a kernel cannot address (see :func:`check_int32`)."""
+
+
+def check_int32(n: int, what: str, remedy: str) -> int:
+    """``n`` if ``0 <= n <= INT32_MAX``, else :class:`CapacityError` naming ``what`` (the
+    quantity, e.g. "silhouette cell-list entries") and ``remedy`` (what the user can
+    change to make it smaller)."""
+    n = int(n)
+    if n > INT32_MAX:
+        raise CapacityError(f"{what}: {n:,} exceeds the int32 indices of the kernels "
+                            f"({INT32_MAX:,}); {remedy}")
+    return n
+
+
+#: low bits kept in the low word of a two-word counter (:func:`wide_add`)
+WIDE_LOW_BITS = 24
+
+
+def wide_add(wide, increment, low_bits: int | None = None):
+    """Add non-negative int32 ``increment`` [K] (each below ``2**31 - 2**low_bits``) to the
+    two-word counters ``wide`` int32 [2, K] (row 0 the low ``low_bits`` bits, row 1 the
+    carries), so a sum over a whole frame never wraps (exact up to ``2**(31 +
+    low_bits)``). Traceable (jax.numpy) code; ``low_bits`` defaults to
+    :data:`WIDE_LOW_BITS` (tests use small values to exercise the carry)."""
+    import jax.numpy as jnp
+    b = WIDE_LOW_BITS if low_bits is None else low_bits
+    low = wide[0] + increment
+    return jnp.stack([low & ((1 << b) - 1), wide[1] + (low >> b)])
+
+
+def wide_min(wide, limit: int, low_bits: int | None = None):
+    """int32: ``min(total, limit)`` of two-word counters ``wide`` [2, ...] (see
+    :func:`wide_add`), traceable, for a static ``limit`` with ``limit + 2**(low_bits + 1)
+    <= INT32_MAX`` (so no intermediate value wraps)."""
+    import jax.numpy as jnp
+    b = WIDE_LOW_BITS if low_bits is None else low_bits
+    check_int32(limit + (2 << b), "wide_min limit", "use a smaller limit")
+    hi = jnp.minimum(wide[1], (limit >> b) + 1)
+    return jnp.minimum((hi << b) + wide[0], limit)
+
+
+def wide_total(wide, low_bits: int | None = None) -> np.ndarray:
+    """int64 [K]: the totals of two-word counters [2, K] (see :func:`wide_add`)."""
+    b = WIDE_LOW_BITS if low_bits is None else low_bits
+    w = np.asarray(wide, np.int64)
+    return (w[1] << b) + w[0]
 
 
 def run_offsets(counts: np.ndarray) -> np.ndarray:

@@ -62,7 +62,7 @@ import functools
 
 import numpy as np
 
-from ..core.capacity import bucket, pad, run_offsets
+from ..core.capacity import bucket, check_int32, pad, run_offsets
 from ..core.sorting import stable_argsort
 
 TILE = 16           # about TILE x TILE pixels of samples per cell
@@ -656,6 +656,10 @@ def batch_arrays(grid: SampleGrid, bins: ScreenBins):
         (blocks int32 [C, N] (the padding block: the last, all zeros), start int32
         [C, N], length int32 [C, N], steps int32 [C], entries int32 [E']).
     """
+    # the kernels read the lists at int32 offsets
+    check_int32(bucket(len(bins.entries), steps=8), "silhouette screen-cell list entries",
+                "the sides and caps cover too many cells; use the option bins='off' (every "
+                "sample tests every side and cap) or render fewer samples")
     length = bins.block_lengths
     first = bins.starts[grid.block_cell]
     limit = max(1, int(max(SPLIT_MIN, SPLIT_OVER_MEAN * length.mean()) if len(length)

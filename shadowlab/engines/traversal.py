@@ -57,7 +57,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.capacity import bucket
+from ..core.capacity import (WIDE_LOW_BITS, bucket, check_int32, wide_add, wide_min,
+                             wide_total)
 from ..core.timing import compiled
 
 LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop
@@ -136,7 +137,7 @@ def _expand_level(tests, ctx, level, row_offsets, st, acc_seen, item, node, job,
         jb = jax.lax.dynamic_slice_in_dim(job, s, e)
         valid = s + jnp.arange(e) < n
         accept_w, w, increment = tests.children(ctx, level, t, nd, valid, acc_seen)
-        counts = counts + increment
+        counts = wide_add(counts, increment)
         rows = jnp.where(accept_w != 0, row0 + nd.astype(jnp.int32), acc.shape[0])
         accept = ((accept_w[:, None] >> jnp.arange(32, dtype=jnp.uint32)) & 1) == 1
         acc = acc.at[rows].max(accept, mode="drop")
@@ -205,9 +206,10 @@ def pass_kernel(tests: NodeTests, prune: bool, level0: int, stop: int, cap: int,
     The returned function takes (data, row_offsets int32 [D], jobs_item int32 [J],
     jobs_node uint32 [J], n_jobs, wave_size, accepted bool [rows, 32], leaf_state), J >=
     (waves - 1) * wave_size + cap, and returns the state dict: accepted, leaf, iters
-    int32 [J] (per job), counts int32 [K], need int32 [levels of the pass + 1] (largest
-    frontier per level: > cap means overflow), fmax, leaf_visits, out_n and the pushed
-    entries out_item / out_node [out_cap + cap].
+    int32 [J] (per job), counts int32 [2, K], need int32 [levels of the pass + 1] (largest
+    frontier per level: > cap means overflow), fmax, leaf_visits [2], out_n [2] and the
+    pushed entries out_item / out_node [out_cap + cap]. ``counts``, ``leaf_visits`` and
+    ``out_n`` are two-word totals (``core.capacity.wide_add``: they never wrap).
     """
     d = tests.levels
     last = min(stop, d)
@@ -218,9 +220,9 @@ def pass_kernel(tests: NodeTests, prune: bool, level0: int, stop: int, cap: int,
         iters_cap = jobs_item.shape[0]
         st = dict(accepted=accepted, leaf=leaf_state,
                   iters=jnp.zeros(iters_cap, jnp.int32),
-                  counts=jnp.zeros(len(tests.counters), jnp.int32),
+                  counts=jnp.zeros((2, len(tests.counters)), jnp.int32),
                   need=jnp.zeros(last - level0 + 1, jnp.int32), fmax=jnp.int32(0),
-                  leaf_visits=jnp.int32(0), out_n=jnp.int32(0),
+                  leaf_visits=jnp.zeros(2, jnp.int32), out_n=jnp.zeros(2, jnp.int32),
                   out_item=jnp.zeros(out_cap + cap, jnp.int32),
                   out_node=jnp.zeros(out_cap + cap, jnp.uint32))
 
@@ -249,8 +251,8 @@ def pass_kernel(tests: NodeTests, prune: bool, level0: int, stop: int, cap: int,
                       need=st["need"].at[last - level0].max(n))
             n = jnp.minimum(n, cap)
             if stop <= d:                                    # pass 1 of two: push jobs
-                o = jnp.minimum(st["out_n"], out_cap)
-                return dict(st, out_n=st["out_n"] + n,
+                o = wide_min(st["out_n"], out_cap)
+                return dict(st, out_n=wide_add(st["out_n"], n),
                             out_item=jax.lax.dynamic_update_slice_in_dim(st["out_item"], item,
                                                                          o, 0),
                             out_node=jax.lax.dynamic_update_slice_in_dim(st["out_node"], node,
@@ -266,7 +268,7 @@ def pass_kernel(tests: NodeTests, prune: bool, level0: int, stop: int, cap: int,
                 return tests.leaves(ctx, t, k, ok, carry)
 
             leaf = jax.lax.fori_loop(0, (n + chunk - 1) // chunk, leaf_body, st["leaf"])
-            return dict(st, iters=iters, leaf_visits=st["leaf_visits"] + n, leaf=leaf)
+            return dict(st, iters=iters, leaf_visits=wide_add(st["leaf_visits"], n), leaf=leaf)
 
         n_waves = (n_jobs + wave_size - 1) // wave_size
         return jax.lax.fori_loop(0, n_waves, wave, st)
@@ -297,8 +299,15 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
     key = (tests, prune, level0, stop)
     cap = max(_CAPS.get(key, 0), bucket(wave_size, minimum=MIN_FRONTIER))
     while True:
+        # a level's children are counted by int32 prefix sums (up to 32 per entry), and the
+        # pushed entries are written at int32 offsets
+        remedy = ("turn on the `prune` option with a smaller `wave`, or render fewer "
+                  "samples")
+        check_int32(32 * cap, f"traversal children of a {cap:,}-entry frontier", remedy)
+        check_int32(out_cap + cap + (2 << WIDE_LOW_BITS), "traversal pass-2 jobs", remedy)
         n_waves = -(-total // wave_size)
         length = bucket((n_waves - 1) * wave_size + cap, minimum=MIN_FRONTIER)
+        check_int32(length, "traversal job list", remedy)
         jt = np.zeros(length, np.int32)
         jn = np.zeros(length, np.uint32)
         jt[:n_jobs], jn[:n_jobs] = jobs_item, jobs_node
@@ -310,7 +319,7 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
             timer.times[compile_stage] = timer.times.get(compile_stage, 0.0) + dt
         st = exe(*args)
         need = np.asarray(st["need"])
-        out_n = int(st["out_n"])
+        out_n = int(wide_total(st["out_n"]))
         if need.max() <= cap and out_n <= out_cap:
             break
         # counts below a truncated level are underestimates: grow by 4x at least
@@ -373,15 +382,15 @@ def traverse(tests: NodeTests, data, row_offsets, items: np.ndarray, accepted, l
     host = jax.device_get({k: st1[k] for k in ("iters", "counts", "fmax", "leaf_visits",
                                                 "out_n")})
     iters1 = host["iters"][: len(items)]
-    counts = host["counts"].astype(np.int64)
-    leaf_visits, fmax = int(host["leaf_visits"]), int(host["fmax"])
+    counts = wide_total(host["counts"])
+    leaf_visits, fmax = int(wide_total(host["leaf_visits"])), int(host["fmax"])
     items2 = np.zeros(0, np.int32)
     nodes2 = np.zeros(0, np.uint32)
     iters2 = np.zeros(0, np.int64)
     st = st1
     if passes == 2:
         _CAPS[key2] = out_cap
-        m = int(host["out_n"])
+        m = int(wide_total(host["out_n"]))
         items2 = np.asarray(st1["out_item"])[:m]
         nodes2 = np.asarray(st1["out_node"])[:m]
         st, _ = run_pass(tests, data, row_offsets, st1["accepted"], st1["leaf"], items2,
@@ -389,8 +398,8 @@ def traverse(tests: NodeTests, data, row_offsets, items: np.ndarray, accepted, l
                          out_cap=0, timer=timer)
         h2 = jax.device_get({k: st[k] for k in ("iters", "counts", "fmax", "leaf_visits")})
         iters2 = h2["iters"][:m]
-        counts += h2["counts"]
-        leaf_visits += int(h2["leaf_visits"])
+        counts += wide_total(h2["counts"])
+        leaf_visits += int(wide_total(h2["leaf_visits"]))
         fmax = max(fmax, int(h2["fmax"]))
     return Traversal(st["accepted"], st["leaf"], iters1, iters2, items2, nodes2, counts,
                      leaf_visits, fmax)

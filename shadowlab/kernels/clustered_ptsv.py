@@ -573,7 +573,7 @@ def traverse_warp(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=wp
                   skeys: wp.array(dtype=wp.uint32), pos: wp.array2d(dtype=wp.float32),
                   scale: wp.array(dtype=wp.float32),
                   shadow: wp.array(dtype=wp.int32), tests: wp.array(dtype=wp.int32),
-                  iters: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+                  iters: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int64),
                   out_tri: wp.array(dtype=wp.int32), out_node: wp.array(dtype=wp.uint32),
                   out_n: wp.array(dtype=wp.int32)):
     """Fast form: a persistent thread per warp, looping over the 32 lanes itself."""
@@ -647,11 +647,11 @@ def traverse_warp(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=wp
             n = child
             visit = True
         iters[j] = its
-        wp.atomic_add(counts, 0, c_tests)
-        wp.atomic_add(counts, 1, c_acc)
-        wp.atomic_add(counts, 2, c_rej)
-        wp.atomic_add(counts, 3, c_xrej)
-        wp.atomic_add(counts, 4, c_leaf)
+        wp.atomic_add(counts, 0, wp.int64(c_tests))
+        wp.atomic_add(counts, 1, wp.int64(c_acc))
+        wp.atomic_add(counts, 2, wp.int64(c_rej))
+        wp.atomic_add(counts, 3, wp.int64(c_xrej))
+        wp.atomic_add(counts, 4, wp.int64(c_leaf))
 
 
 @wp.kernel
@@ -674,7 +674,7 @@ def traverse_lanes(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=w
                    skeys: wp.array(dtype=wp.uint32), pos: wp.array2d(dtype=wp.float32),
                    scale: wp.array(dtype=wp.float32),
                    shadow: wp.array(dtype=wp.int32), tests: wp.array(dtype=wp.int32),
-                   iters: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+                   iters: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int64),
                    out_tri: wp.array(dtype=wp.int32), out_node: wp.array(dtype=wp.uint32),
                    out_n: wp.array(dtype=wp.int32)):
     """Faithful form: a persistent 32-lane warp (block) per job, a lane per child.
@@ -759,11 +759,11 @@ def traverse_lanes(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=w
             visit = True
         if lane == 0:
             iters[j] = its
-            wp.atomic_add(counts, 0, c_tests)
-            wp.atomic_add(counts, 1, c_acc)
-            wp.atomic_add(counts, 2, c_rej)
-            wp.atomic_add(counts, 3, c_xrej)
-            wp.atomic_add(counts, 4, c_leaf)
+            wp.atomic_add(counts, 0, wp.int64(c_tests))
+            wp.atomic_add(counts, 1, wp.int64(c_acc))
+            wp.atomic_add(counts, 2, wp.int64(c_rej))
+            wp.atomic_add(counts, 3, wp.int64(c_xrej))
+            wp.atomic_add(counts, 4, wp.int64(c_leaf))
 
 
 @wp.kernel
@@ -1074,7 +1074,8 @@ def traverse(p: dict, hier: Hierarchy, o: dict, form: str = "lanes", workers: in
         "scale": _arr(p["scale"] if len(p["scale"]) else np.zeros(1), f32, dev),
         "shadow": wp.zeros(s, dtype=wp.int32, device=dev),
         "tests": wp.zeros(s, dtype=wp.int32, device=dev)}
-    counts = wp.zeros(N_COUNTS, dtype=wp.int32, device=dev)
+    # int64: a frame's node tests can pass 2**31 (4k images, 1M triangles)
+    counts = wp.zeros(N_COUNTS, dtype=wp.int64, device=dev)
     kern = traverse_lanes if form == "lanes" else traverse_warp
 
     def run_pass(jt, jn, level0, stop, out_cap):

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.capacity import bucket, pad
+from ..core.capacity import CapacityError, bucket, check_int32, pad
 from ..core.numerics import materialize
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.caches import per_scene_cache
@@ -405,6 +405,7 @@ NODE_MASK = (1 << 27) - 1
 TWICE, SL, SHADOW, DONE = 1 << 27, 1 << 28, 1 << 29, 1 << 30
 STALL = np.int32(np.iinfo(np.int32).min)    # sign bit: hybrid lane waiting for the full step
 MAX_STACK = 63          # the stats word keeps the stack pointer and maximum in 6 bits
+COUNT_MAX = (1 << 19) - 1   # and a lane's overflow / switch count in bits 12-30
 
 
 def _pack(node, twice, sl, shadow, done):
@@ -593,6 +594,11 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     s_count = points.shape[0]
     k = max(stack_size, 1)
     tol = jnp.asarray(dt(tree.margin))
+    if tree.plane.shape[0] > NODE_MASK + 1:
+        raise CapacityError(f"PSV query: a TOP tree of {tree.plane.shape[0]:,} nodes; a lane's "
+                            f"state word holds node ids below {NODE_MASK + 1:,} (about "
+                            f"{(NODE_MASK + 1) // 4:,} casters): cull casters (options "
+                            "face_culling, frustum_culling) or split the scene")
     with timer.stage("query_setup"):
         treeargs = device_node_arrays(tree, ROWS[query])
         light = jnp.asarray(light_h.astype(dt))
@@ -604,6 +610,9 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     n_chunks = 0
     with timer.stage("query_setup"):
         b = bucket(max(s_count, 1), minimum=MIN_LANES, steps=4)
+        if query != "stackless":        # the stack is addressed at int32 offsets
+            check_int32(stack_buffer_size(b, k), f"PSV stack entries ({k + 1} per lane)",
+                        "use a smaller stack_size or render fewer samples")
         if lane_order is None:
             lane_id = np.arange(s_count)
             src = (points, scale, key)
@@ -674,6 +683,11 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         b = nb
     _give_stack(spare, state.get("stack"))
     _give_stack(spare, dest)
+    if has_stack and s_count and out["visited"].max() > COUNT_MAX:
+        # a lane loses or switches at most once per visit, so below this its count is exact
+        raise CapacityError(f"PSV query: a sample visited {int(out['visited'].max()):,} nodes; "
+                            f"its stack overflow / switch count (at most one per visit) is "
+                            f"kept in {31 - 12} bits of its state (at most {COUNT_MAX:,})")
     out["chunks"] = n_chunks
     return out
 
