@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from shadowlab.core.numerics import (cross3, norms3, opaque, opaque_mul, opaque_multiplier,
+from shadowlab.core.numerics import (column_bounds, cross3, norms3, opaque, opaque_mul, opaque_multiplier,
                                      opaque_zero, ordered_dot, ordered_sum)
 from shadowlab.core.frame import precision_mode
 
@@ -152,3 +152,27 @@ def test_norms3_equal_numpy_norm_bit_for_bit(dtype):
     np.testing.assert_array_equal(norms3(np.array([[3, 4, 12]])), [13.0])    # ints: float64
     with pytest.raises(ValueError, match="length 3"):
         norms3(np.zeros((4, 2)))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32])
+def test_column_bounds_equal_numpy_min_max(dtype):
+    """column_bounds gives x.min(axis=0), x.max(axis=0) exactly, NaN and inf included."""
+    rng = np.random.default_rng(5)
+    for k in (1, 2, 3, 5):
+        x = (rng.normal(size=(1000, k)) * 10.0 ** rng.uniform(-30, 30, (1000, k))).astype(
+            dtype) if dtype != np.int32 else rng.integers(-2 ** 31, 2 ** 31 - 1, (1000, k),
+                                                          dtype=np.int64).astype(np.int32)
+        if dtype != np.int32:
+            x[rng.integers(0, 1000, 3), 0] = np.inf
+            x[rng.integers(0, 1000, 3), k - 1] = -np.inf
+            if k > 1:
+                x[7, 1] = np.nan
+        lo, hi = column_bounds(x)
+        assert lo.dtype == x.dtype and hi.dtype == x.dtype
+        np.testing.assert_array_equal(lo, x.min(axis=0))
+        np.testing.assert_array_equal(hi, x.max(axis=0))
+        np.testing.assert_array_equal(column_bounds(x[::3])[0], x[::3].min(axis=0))
+    with pytest.raises(ValueError):
+        column_bounds(np.zeros((0, 3), dtype))
+    with pytest.raises(ValueError):
+        column_bounds(np.zeros(3, dtype))

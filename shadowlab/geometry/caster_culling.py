@@ -48,7 +48,7 @@ import itertools
 
 import numpy as np
 
-from ..core.numerics import norms3
+from ..core.numerics import column_bounds, norms3
 from ..reference.raycast import _orthonormal
 from ..scene.caches import per_scene_cache
 from ..scene.view import DirectionalLight, PointLight, SphereLight, hard_light
@@ -231,10 +231,11 @@ def hull_planes(points: np.ndarray, tol: float) -> np.ndarray:
 def outside_hull(triangles: np.ndarray, planes: np.ndarray, pad: float) -> np.ndarray:
     """bool [T]: triangles [T, 3, 3] whose three corners lie more than ``pad`` outside
     one plane of ``planes`` [K, 4]."""
+    corners = np.asarray(triangles).reshape(-1, 3)                # [3T, 3]: one matvec
     out = np.zeros(len(triangles), bool)
     for n0, n1, n2, d in planes:
-        dist = triangles @ np.array([n0, n1, n2]) - d          # [T, 3]
-        out |= np.all(dist > pad, axis=1)
+        far = corners @ np.array([n0, n1, n2]) - d > pad          # [3T]
+        out |= far[0::3] & far[1::3] & far[2::3]
     return out
 
 
@@ -311,7 +312,7 @@ def behind_receivers(triangles: np.ndarray, samples: np.ndarray, light_h: np.nda
         e1, e2 = _orthonormal(w)
         basis = np.stack([e1, e2, -w], 1)              # (u, v, depth away from the light)
         sp, tp = samples @ basis, triangles @ basis
-        lo, hi = sp[:, :2].min(axis=0), sp[:, :2].max(axis=0)
+        lo, hi = column_bounds(sp[:, :2])
         # cells never narrower than the methods' float32 rounding of the coordinates
         # (the one-cell dilation must cover it, also when the samples span nothing)
         reach = diag + float(np.abs(sp).max()) + float(np.abs(tp).max())
@@ -419,9 +420,10 @@ def cull_casters(scene, gbuf, light, mode: str, soft: bool = False) -> CasterCul
     pts = gbuf.position[gbuf.valid]
     if len(pts) == 0:
         return CasterCull(keep, 0, 0)
-    diag = max(scene.diagonal, float(np.ptp(pts, axis=0).max()), 1e-30)
+    lo, hi = column_bounds(pts)
+    diag = max(scene.diagonal, float((hi - lo).max()), 1e-30)
     pad = PAD * diag
-    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    lo, hi = lo - pad, hi + pad
     planes = hull_planes(hull_points(lo, hi, light, 2.0 * diag, soft), tol=pad)
     outside = outside_hull(scene.triangles, planes, pad)
     steps = _STEPS[mode]
