@@ -136,19 +136,24 @@ def _reference(masks, qa, qb, may, *, passes, expand_level, wave, prune):
                 iters1=iters1, iters2=iters2, pushed=pushed, **stats)
 
 
+def _traverse(qa, qb, masks, may, passes, expand_level, wave, prune):
+    """The engine on the range problem, from an empty accepted set and leaf state."""
+    data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
+            "qa": jnp.asarray(qa), "qb": jnp.asarray(qb), "may_accept": jnp.asarray(may)}
+    return tv.traverse(RangeTests(), data, data["rows"], np.arange(len(qa), dtype=np.int32),
+                       jnp.zeros((N_ROWS, 32), bool),
+                       (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
+                       passes=passes, expand_level=expand_level, wave=wave, prune=prune)
+
+
 @pytest.mark.parametrize("passes,expand_level,wave,prune,overflows", [
     (1, 1, None, False, True), (2, 2, None, False, True), (1, 1, 7, True, True),
     (2, 1, 16, True, False)])
 def test_engine_visits_the_same_nodes_as_a_python_loop(passes, expand_level, wave, prune,
                                                        overflows):
     cells, masks, qa, qb, may = _problem()
-    data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
-            "qa": jnp.asarray(qa), "qb": jnp.asarray(qb), "may_accept": jnp.asarray(may)}
     tv._CAPS.clear()                        # start from the smallest bucket: overflow retry
-    got = tv.traverse(RangeTests(), data, data["rows"], np.arange(len(qa), dtype=np.int32),
-                      jnp.zeros((N_ROWS, 32), bool),
-                      (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
-                      passes=passes, expand_level=expand_level, wave=wave, prune=prune)
+    got = _traverse(qa, qb, masks, may, passes, expand_level, wave, prune)
     want = _reference(masks, qa, qb, may, passes=passes, expand_level=expand_level,
                       wave=wave, prune=prune)
     assert (want["frontier_max"] > tv.MIN_FRONTIER) == overflows   # the retry path ran
@@ -184,13 +189,8 @@ def test_counters_that_carry_keep_every_total(two_bit_counters, passes, expand_l
     """The counters, leaf visits and pushed jobs are two-word totals (so a frame's node
     tests may pass 2**31): with a carry every 4 counts they still equal the Python loop."""
     cells, masks, qa, qb, may = _problem()
-    data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
-            "qa": jnp.asarray(qa), "qb": jnp.asarray(qb), "may_accept": jnp.asarray(may)}
     tv._CAPS.clear()
-    got = tv.traverse(RangeTests(), data, data["rows"], np.arange(len(qa), dtype=np.int32),
-                      jnp.zeros((N_ROWS, 32), bool),
-                      (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
-                      passes=passes, expand_level=expand_level, wave=wave, prune=prune)
+    got = _traverse(qa, qb, masks, may, passes, expand_level, wave, prune)
     want = _reference(masks, qa, qb, may, passes=passes, expand_level=expand_level,
                       wave=wave, prune=prune)
     assert min(want["counts"]) > 4 and want["leaf_visits"] > 4
@@ -206,16 +206,11 @@ def test_a_frontier_whose_children_int32_cannot_count_is_refused():
     """A frontier bucket of 2**26 entries (2**31 children) is refused with a clear error
     before anything is allocated, not run with wrapping prefix sums."""
     cells, masks, qa, qb, may = _problem()
-    data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
-            "qa": jnp.asarray(qa), "qb": jnp.asarray(qb), "may_accept": jnp.asarray(may)}
     tv._CAPS.clear()
     tv._CAPS[(RangeTests(), False, 0, D + 1)] = 2 ** 26
     try:
         with pytest.raises(capacity.CapacityError, match="frontier.*prune"):
-            tv.traverse(RangeTests(), data, data["rows"], np.arange(len(qa), dtype=np.int32),
-                        jnp.zeros((N_ROWS, 32), bool),
-                        (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
-                        passes=1, expand_level=1, wave=None, prune=False)
+            _traverse(qa, qb, masks, may, 1, 1, None, False)
     finally:
         tv._CAPS.clear()
 
