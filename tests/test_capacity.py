@@ -139,3 +139,12 @@ def test_check_int32_names_the_quantity_and_the_remedy():
         check_int32(INT32_MAX + 1, "entries", "render less")
     with pytest.raises(CapacityError):
         wide_min(jnp.zeros((2, 1), jnp.int32), INT32_MAX - 100)   # its sum could wrap
+
+
+def test_retry_refuses_a_count_that_wrapped():
+    """A need below zero can only be an integer count that wrapped: refused, never taken
+    for 'nothing overflowed'."""
+    with pytest.raises(CapacityError, match="wrapped"):
+        retry_on_overflow(lambda cap: ("result", -(2 ** 31) + 5), 1024)
+    with pytest.raises(CapacityError, match="wrapped"):
+        retry_on_overflow(lambda caps: ("result", (3, -1)), (8, 8))

@@ -423,6 +423,22 @@ def test_memory_report_matches_the_paper():
         tree.log_ratio
 
 
+def test_keys_int32_rows_cannot_address_are_refused_before_the_traversal():
+    """Keys of 31 or more bits would index the accepted-children rows past int32: the
+    layout refuses them up front (the automatic z_bits stays within the limit)."""
+    from shadowlab.core.capacity import CapacityError
+    cam = sl.Camera(eye=(0, 0, 5), target=(0, 0, 0), near=0.1, far=1000,
+                    resolution=(8192, 8192))
+    auto = ch.cluster_layout(cam)
+    assert auto.key_bits == ch.MAX_KEY_BITS == 30 and auto.bits == (10, 10, 10)
+    with pytest.raises(CapacityError, match="31 bits.*at most 30"):
+        ch.cluster_layout(cam, z_bits=11)
+    scene, gbuf, light, _ = _setup("gate", 48)
+    with pytest.raises(CapacityError, match="z_bits"):
+        sl.compute_shadows(scene, gbuf, light, method="clustered_ptsv", z_bits=25,
+                           depth_slices="scaled")
+
+
 def test_post_perspective_planes_orientation_and_shared_edges(precision):
     dtype = np.float64 if precision == "float64" else np.float32
     rng = np.random.default_rng(3)

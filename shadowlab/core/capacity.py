@@ -121,7 +121,8 @@ def retry_on_overflow(step: Callable, capacity, grow: Callable = grow_to_bucket)
             static capacity (a jitted kernel compiled for it) and reports, per capacity,
             the number of entries the work needed (an exact count, or a lower bound if
             ``grow`` over-allocates to make up for it). ``need > capacity`` means the
-            overflowing entries were dropped and ``result`` must not be used.
+            overflowing entries were dropped and ``result`` must not be used; a negative
+            need (a count that wrapped) raises :class:`CapacityError`.
         capacity: an int, or a tuple of ints for several capacities.
         grow: ``grow(need, capacity) -> new capacity`` (> capacity) for an overflowing
             capacity; one function, or a tuple of them, one per capacity.
@@ -136,6 +137,9 @@ def retry_on_overflow(step: Callable, capacity, grow: Callable = grow_to_bucket)
     while True:
         result, need = step(caps[0] if single else caps)
         needs = (need,) if single else tuple(need)
+        if any(int(n) < 0 for n in needs):
+            raise CapacityError(f"a kernel reported needing {[int(n) for n in needs]} "
+                                "entries: a negative count wrapped past its integer type")
         if all(int(n) <= c for n, c in zip(needs, caps)):
             return result, (caps[0] if single else caps)
         caps = tuple(g(int(n), c) if int(n) > c else c for g, n, c in zip(grows, needs, caps))

@@ -48,7 +48,7 @@ import time
 import numpy as np
 import warp as wp
 
-from ..core.capacity import retry_on_overflow
+from ..core.capacity import check_int32, retry_on_overflow
 from .psv import fma32, xla_contracts
 from .runtime import init
 
@@ -575,7 +575,7 @@ def traverse_warp(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=wp
                   shadow: wp.array(dtype=wp.int32), tests: wp.array(dtype=wp.int32),
                   iters: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int64),
                   out_tri: wp.array(dtype=wp.int32), out_node: wp.array(dtype=wp.uint32),
-                  out_n: wp.array(dtype=wp.int32)):
+                  out_n: wp.array(dtype=wp.int64)):
     """Fast form: a persistent thread per warp, looping over the 32 lanes itself."""
     while True:
         j = wp.atomic_add(next_job, 0, 1)
@@ -638,8 +638,8 @@ def traverse_warp(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=wp
             child = (fr_node[sp - 1] << wp.uint32(5)) | wp.uint32(c)
             clv = level0 + sp
             if clv == stop:                           # two-pass: push a (triangle, node) job
-                k = wp.atomic_add(out_n, 0, 1)
-                if k < out_tri.shape[0]:
+                k = wp.atomic_add(out_n, 0, wp.int64(1))
+                if k < wp.int64(out_tri.shape[0]):
                     out_tri[k] = t
                     out_node[k] = child
                 continue
@@ -676,7 +676,7 @@ def traverse_lanes(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=w
                    shadow: wp.array(dtype=wp.int32), tests: wp.array(dtype=wp.int32),
                    iters: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int64),
                    out_tri: wp.array(dtype=wp.int32), out_node: wp.array(dtype=wp.uint32),
-                   out_n: wp.array(dtype=wp.int32)):
+                   out_n: wp.array(dtype=wp.int64)):
     """Faithful form: a persistent 32-lane warp (block) per job, a lane per child.
 
     Every lane runs the same control flow (the warp-uniform stack of Algorithm 1's
@@ -749,8 +749,8 @@ def traverse_lanes(job_tri: wp.array(dtype=wp.int32), job_node: wp.array(dtype=w
             clv = level0 + sp
             if clv == stop:
                 if lane == 0:
-                    k = wp.atomic_add(out_n, 0, 1)
-                    if k < out_tri.shape[0]:
+                    k = wp.atomic_add(out_n, 0, wp.int64(1))
+                    if k < wp.int64(out_tri.shape[0]):
                         out_tri[k] = t
                         out_node[k] = child
                 continue
@@ -1083,7 +1083,7 @@ def traverse(p: dict, hier: Hierarchy, o: dict, form: str = "lanes", workers: in
         iters = wp.zeros(max(n, 1), dtype=wp.int32, device=dev)
         out_tri = wp.zeros(max(out_cap, 1), dtype=wp.int32, device=dev)
         out_node = wp.zeros(max(out_cap, 1), dtype=wp.uint32, device=dev)
-        out_n = wp.zeros(1, dtype=wp.int32, device=dev)
+        out_n = wp.zeros(1, dtype=wp.int64, device=dev)     # counts past 2**31
         if n:
             c = common
             args = [_arr(jt, i32, dev), _arr(jn, np.uint32, dev), n, level0, stop,
@@ -1116,7 +1116,8 @@ def traverse(p: dict, hier: Hierarchy, o: dict, form: str = "lanes", workers: in
             for k in ("ta", "shadow", "tests"):
                 common[k].zero_()
             counts.zero_()
-        runs.append(out_cap)
+        runs.append(check_int32(out_cap, "pass-2 (triangle, node) jobs",
+                                "use a smaller expand_level or render fewer samples"))
         out = run_pass(casters[order], np.zeros(len(casters), np.uint32), 0, stop, out_cap)
         return out, out[3]
 

@@ -73,7 +73,7 @@ from ..structures.tile_lists import (
 )
 from ..core.timing import StageTimer
 from ..structures import sun_disk as sd
-from ..core.capacity import bucket
+from ..core.capacity import bucket, check_int32, wide_add, wide_total
 from ..core.frame import precision_mode
 from .interface import MethodError
 from .registry import Option, register
@@ -256,7 +256,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
         (tile t's at
         offsets[t] .. offsets[t] + counts[t]). Returns vis [G, 256], the counts of
         tests, rasterized, near-clamp and recorded pairs [G, 256] (int32) and the
-        rasterizer lanes executed (int32 []: steps x lanes, summed over the steps).
+        rasterizer lanes executed with ``defer`` (steps x lanes, summed over the steps;
+        int32 [2], two words: ``core.capacity.wide_add``; zeros without ``defer``, whose
+        count the host computes).
         """
         pos = [pix["pos"][i][tiles] for i in range(3)]              # [G, 256] each
         fr = [pix["frame"][i][tiles] for i in range(9)]
@@ -429,8 +431,9 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 vis = jnp.clip(1.0 - blocked, 0.0, 1.0)
             else:
                 vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
-            # every step rasterized on every lane of the batch
-            lanes = (trips * chunk * rel.size).astype(jnp.int32)
+            # every step rasterizes on every lane of the batch: trips x chunk x lanes,
+            # which the host computes exactly (an int32 product could wrap)
+            lanes = jnp.zeros(2, jnp.int32)
             return jnp.where(rel, vis, 0.0), tests, rast, clamp, rast, lanes
 
         # Deferred: a first pass over the list only runs the per-pixel quick reject and
@@ -562,14 +565,15 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             words, (rast, clamp), executed = flush(words, base, bits, summary)
             tests, rast0, clamp0, rec = counts
             alive = functools.reduce(jnp.logical_or, [wd != 0 for wd in words])
-            return end, words, (tests, rast0 + rast, clamp0 + clamp, rec), alive, steps + executed
+            return (end, words, (tests, rast0 + rast, clamp0 + clamp, rec), alive,
+                    wide_add(steps, executed))
 
         def more(state):
             return (state[0] < n_words) & jnp.any(state[3] & rel)
 
         alive0 = functools.reduce(jnp.logical_or, [wd != 0 for wd in words0])
         state = jax.lax.while_loop(more, round_, (jnp.int32(0), words0, (zero,) * 4,
-                                                  alive0, jnp.int32(0)))
+                                                  alive0, jnp.zeros(2, jnp.int32)))
         _, words, (tests, rast, clamp, rec), _, lanes = state
         vis = (sd.popcount_list(words).astype(dtype) / g.disk_bits).astype(dtype)
         return (jnp.where(rel, vis, 0.0), tests, rast, clamp,
@@ -769,7 +773,9 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             pix["rel"] = jnp.asarray(relevant)
             tri_g_arr = np.zeros((bucket(max(n_gather, 1), minimum=64, steps=8), 3, 3), dtype)
             tri_g_arr[:n_gather] = tri_all[gathered]
-            L = bucket(max(len(tri_g), 1), minimum=1024, steps=8)
+            L = check_int32(bucket(max(len(tri_g), 1), minimum=1024, steps=8),
+                            "soft_tiled tile-list entries (read at int32 offsets)",
+                            "keep tile_cull on, or render fewer pixels or casters")
             ent = np.zeros(L, np.int32)
             ent[:len(tri_g)] = tri_g
             ehalf = np.zeros(L, np.int32)
@@ -782,6 +788,7 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
                            jnp.asarray(ehalf), jnp.asarray(dtype(eps)))
             kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode, defer,
                                   compact, record)
+            deferred = defer and mode == "bitmask"          # as _eval_kernel decides
             nchunks = -(-counts // chunk)
             vis = np.zeros((n_tiles, TILE * TILE))
             tests = np.zeros((n_tiles, TILE * TILE), np.int64)
@@ -812,7 +819,8 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
             rast[members_t] = np.asarray(ra)[:n]
             clamped[members_t] = np.asarray(cl)[:n]
             recorded += int(np.asarray(rc)[:n].sum())
-            raster_lanes += int(st)
+            raster_lanes += (int(wide_total(st)) if deferred
+                             else int(nchunks[members_t].max()) * chunk * batch * TILE * TILE)
 
     with timer.stage("output"):
         def to_image(values, fill=0):

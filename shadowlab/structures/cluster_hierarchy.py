@@ -41,6 +41,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..core.capacity import CapacityError
 from ..core.numerics import opaque_multiplier, opaque_zero, ordered_dot
 from ..geometry.morton import axis_bits, decode, encode, grouped_layout, round_robin_layout
 
@@ -128,22 +129,30 @@ class TreeLayout:
         return axis_bits(self.layout, axis, below=min(self.shift(level), self.key_bits))
 
 
+#: key bits of a tree: the accepted-children rows (32 per inner node, every level) are
+#: indexed with int32, which 31 or more key bits would pass
+MAX_KEY_BITS = 30
+
+
 def cluster_layout(camera, z_bits: int = 0, depth_slices: str = "clamp",
                    fov_y_deg: float | None = None) -> TreeLayout:
     """The 2014 cluster key layout for ``camera`` (resolution, near, far, fov).
 
     ``z_bits = 0`` picks the paper's choice: two more depth bits than the larger of the
-    x / y tile bits (9 at 1024 x 1024, 10 for 1080p, at most 32 key bits in total).
+    x / y tile bits (9 at 1024 x 1024, 10 for 1080p), at most ``MAX_KEY_BITS`` key bits in
+    total (:class:`~shadowlab.core.capacity.CapacityError` beyond).
     The slice ratio is eq. (1): r = 1 + 2 tan(fov_y / 2) / S_y, S_y the tile rows.
     """
     if depth_slices not in DEPTH_SLICE_MODES:
         raise ValueError(f"depth_slices must be one of {DEPTH_SLICE_MODES}")
     w, h = camera.resolution
     bx, by = _bits_for(-(-w // 8)), _bits_for(-(-h // 8))
-    bz = z_bits or min(max(bx, by) + 2, 32 - bx - by)
-    if bx + by + bz > 32:
-        raise ValueError(f"cluster key needs {bx + by + bz} bits (> 32) at {w}x{h} with "
-                         f"z_bits={bz}")
+    bz = z_bits or min(max(bx, by) + 2, MAX_KEY_BITS - bx - by)
+    if bx + by + bz > MAX_KEY_BITS:
+        raise CapacityError(f"cluster key needs {bx + by + bz} bits at {w}x{h} with "
+                            f"z_bits={bz}; at most {MAX_KEY_BITS} (the merge addresses a "
+                            f"node's 32 children at int32 offsets): use a smaller z_bits "
+                            f"or resolution")
     fov = camera.fov_y_deg if fov_y_deg is None else fov_y_deg
     tan_half = math.tan(math.radians(fov) / 2)
     sy = -(-h // 8)

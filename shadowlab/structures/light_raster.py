@@ -52,7 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.capacity import bucket, pad, run_offsets
+from ..core.capacity import bucket, check_int32, pad, run_offsets
 
 from ..scene.light_camera import LightCamera, LightFace
 
@@ -330,6 +330,9 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
         depth[f * t_cap: f * t_cap + len(s.depth)] = s.depth
     total = int(count.sum())
     m_cap = bucket(len(count), minimum=256)
+    # segment_owner numbers the segments with an int32 running sum
+    check_int32(m_cap, "light-raster row segments", "use a smaller light resolution or "
+                "fewer casters")
     out = _raster_kernel(
         jnp.asarray(pad(face * t_cap + tri, m_cap)), jnp.asarray(pad(first, m_cap)),
         jnp.asarray(pad(count, m_cap)), jnp.asarray(pad(keys, bucket(len(keys)))),
