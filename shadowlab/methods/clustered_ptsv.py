@@ -347,7 +347,7 @@ def top_jobs(iterations: np.ndarray, k: int = TOP_JOBS) -> np.ndarray:
 def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shadow_eps: float,
                          bias: str, bounds: str = "explicit", storage: str = "compact",
                          culling_planes: bool = True, passes: int = 1, expand_level: int = 3,
-                         prune: bool = False, wave: int = 512, front_face_culling: bool = False,
+                         prune: bool = False, wave: int = 512, front_face_culling: bool = True,
                          cull_side: str = "averted", bias_reject: bool = False,
                          leaf_samples: str = "tile", z_bits: int = 0,
                          depth_slices: str = "clamp", tree_samples: str = "facing",
@@ -526,8 +526,10 @@ COMMON_TRAVERSAL_OPTIONS = {
                     "on the documented job order)", allowed=BOOL),
     "wave": Option(512, "jobs per wave when pruning (accepts of earlier waves are visible to "
                    "later ones)", kind=int, minimum=1),
-    "front_face_culling": Option(False, "drop one side of closed objects' triangles (which: "
-                                 "cull_side)", allowed=BOOL),
+    "front_face_culling": Option(True, "drop one side of closed objects' triangles (which: "
+                                 "cull_side; with the default 'averted' side the lit mask is "
+                                 "the same as without, in about half the work on closed "
+                                 "scenes)", allowed=BOOL),
     "cull_side": Option("averted", "with front_face_culling: drop the triangles facing away "
                         "from the light ('averted': exact with the bias) or facing it "
                         "('facing': the papers' choice; loses shadows where a receiver is "
