@@ -264,6 +264,7 @@ def _cmd_figures(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     from .config import ConfigError
+    from .core.capacity import CapacityError
     from .harness.figures import ExperimentError
     from .core.jaxcache import enable_compilation_cache
     from .methods import MethodError
@@ -276,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
                 "bench": _cmd_bench, "figures": _cmd_figures}
     try:
         return handlers[args.command](args)
-    except (ConfigError, ExperimentError, MethodError, SceneError) as exc:
+    except (ConfigError, ExperimentError, MethodError, SceneError, CapacityError) as exc:
         print(f"shadowlab: error: {exc}", file=sys.stderr)
         return 2
     except MemoryError as exc:      # past the up-front estimate (shadowlab.config.resources)

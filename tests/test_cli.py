@@ -115,7 +115,8 @@ def test_invalid_experiment_config_exits_2_before_any_experiment_runs(tmp_path, 
 
 
 def test_every_user_error_exits_2_with_the_prefix(tmp_path, capsys):
-    """Config, method, scene and experiment errors all print 'shadowlab: error:' and exit 2."""
+    """Config, method, scene, experiment and capacity errors all print 'shadowlab: error:'
+    and exit 2."""
     cases = [
         ["run", "--set", "camera.resolution=[8,8]", "--set", "reference.soft_rays=0"],
         ["run", "--set", "camera.resolution=[8,8]", "--set", 'methods.names=["soft_tiled"]'],
@@ -123,6 +124,8 @@ def test_every_user_error_exits_2_with_the_prefix(tmp_path, capsys):
          "--set", "scene.params.triangles=2", "--set", "scene.params.clusters=3",
          "--set", 'methods.names=["brute_force"]'],
         ["figures", "--root", str(tmp_path)],
+        ["run", "--set", "camera.resolution=[16,16]", "--set", 'methods.names=["clustered_ptsv"]',
+         "--set", "methods.options.clustered_ptsv.z_bits=30"],      # a key past int32 rows
     ]
     for argv in cases:
         assert main([*argv, "--quiet"] if argv[0] == "run" else argv) == 2, argv

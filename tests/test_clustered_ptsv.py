@@ -46,12 +46,12 @@ COMBOS = [
     dict(),
     dict(bounds="implicit", culling_planes=False, passes=2, expand_level=2, prune=True,
          wave=64, bias_reject=True),
-    dict(storage="full", front_face_culling=True, leaf_samples="cluster",
+    dict(storage="full", front_face_culling=False, leaf_samples="cluster",
          depth_slices="scaled", z_bits=4),
 ]
 
 
-@pytest.mark.parametrize("opts", COMBOS, ids=["default", "implicit-2pass-prune", "full-ffc-z4"])
+@pytest.mark.parametrize("opts", COMBOS, ids=["default", "implicit-2pass-prune", "full-noffc-z4"])
 def test_clustered_equals_reference(opts):
     for name in SCENES:
         scene, gbuf, light, truth = _setup(name)
@@ -77,8 +77,8 @@ def test_cap_bias_equals_brute_force():
 
 
 @pytest.mark.parametrize("opts", [dict(), dict(culling_planes=False, passes=2, prune=True,
-                                               wave=64, front_face_culling=True)],
-                         ids=["default", "2pass-prune-ffc"])
+                                               wave=64, front_face_culling=False)],
+                         ids=["default", "2pass-prune-noffc"])
 def test_ptsv_equals_reference(opts):
     for name in SCENES:
         scene, gbuf, light, truth = _setup(name)
@@ -550,7 +550,7 @@ def _loop_traversal(det):
 
 
 @pytest.mark.parametrize("method,opts,two", [
-    ("cluster", dict(bounds="explicit"), True),
+    ("cluster", dict(bounds="explicit", front_face_culling=False), True),
     ("cluster", dict(bounds="explicit", bias_reject=True), False),
     ("cluster", dict(bounds="implicit", storage="full"), False),
     ("ptsv", dict(), False)])

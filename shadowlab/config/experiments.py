@@ -71,7 +71,6 @@ class ExperimentConfig(BaseModel):
     overflow_capacity: number(int, ge=1, optional=True) = None
     expand_level: number(int, ge=0, optional=True) = None
     workers: _ints(1) = None
-    front_face_culling: Annotated[Optional[StrictBool], _wanted("true or false")] = None
     # silhouette sweeps (experiments/silhouette_work.py)
     triangles_per_sphere_sweep: _ints(6) = None
     objects_sweep: _ints(1) = None

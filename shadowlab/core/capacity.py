@@ -34,6 +34,9 @@ def check_int32(n: int, what: str, remedy: str) -> int:
     quantity, e.g. "silhouette cell-list entries") and ``remedy`` (what the user can
     change to make it smaller)."""
     n = int(n)
+    if n < 0:
+        raise CapacityError(f"{what}: {n:,} is negative: a count wrapped past its integer "
+                            f"type; {remedy}")
     if n > INT32_MAX:
         raise CapacityError(f"{what}: {n:,} exceeds the int32 indices of the kernels "
                             f"({INT32_MAX:,}); {remedy}")

@@ -65,6 +65,7 @@ LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop
 EXPAND_CHUNK = 2048      # frontier entries per step of the expand loop
 SELECT_CHUNK = 4096      # output slots per step of the compaction loop
 MIN_FRONTIER = 4096      # smallest frontier bucket
+MAX_FRONTIER = 1 << 25   # largest: 32 children per entry must be countable in int32
 
 
 class NodeTests(Protocol):
@@ -304,10 +305,11 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
         remedy = ("turn on the `prune` option with a smaller `wave`, or render fewer "
                   "samples")
         check_int32(32 * cap, f"traversal children of a {cap:,}-entry frontier", remedy)
-        check_int32(out_cap + cap + (2 << WIDE_LOW_BITS), "traversal pass-2 jobs", remedy)
+        check_int32(out_cap + cap + (2 << WIDE_LOW_BITS), "traversal pass-2 jobs",
+                    "use passes=1 or a smaller expand_level, or render fewer samples")
         n_waves = -(-total // wave_size)
         length = bucket((n_waves - 1) * wave_size + cap, minimum=MIN_FRONTIER)
-        check_int32(length, "traversal job list", remedy)
+        check_int32(max(length, n_jobs + wave_size), "traversal job list", remedy)
         jt = np.zeros(length, np.int32)
         jn = np.zeros(length, np.uint32)
         jt[:n_jobs], jn[:n_jobs] = jobs_item, jobs_node
@@ -322,9 +324,11 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
         out_n = int(wide_total(st["out_n"]))
         if need.max() <= cap and out_n <= out_cap:
             break
-        # counts below a truncated level are underestimates: grow by 4x at least
+        # counts below a truncated level are underestimates: grow by 4x at least, but not
+        # past the largest frontier whose children int32 counts (then only as needed)
         if need.max() > cap:
-            cap = max(bucket(int(need.max()), minimum=MIN_FRONTIER), 4 * cap)
+            want = bucket(int(need.max()), minimum=MIN_FRONTIER)
+            cap = want if want > MAX_FRONTIER else min(max(want, 4 * cap), MAX_FRONTIER)
         if out_n > out_cap:
             out_cap = bucket(out_n, minimum=MIN_FRONTIER)
     _CAPS[key] = cap

@@ -1080,6 +1080,8 @@ def traverse(p: dict, hier: Hierarchy, o: dict, form: str = "lanes", workers: in
 
     def run_pass(jt, jn, level0, stop, out_cap):
         n = len(jt)
+        check_int32(n + workers, "Warp traversal jobs (the int32 job counter)",
+                    "use passes=1 or a smaller expand_level, or render fewer samples")
         iters = wp.zeros(max(n, 1), dtype=wp.int32, device=dev)
         out_tri = wp.zeros(max(out_cap, 1), dtype=wp.int32, device=dev)
         out_node = wp.zeros(max(out_cap, 1), dtype=wp.uint32, device=dev)

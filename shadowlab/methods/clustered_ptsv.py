@@ -572,8 +572,9 @@ TRAVERSAL_DECLARATION = {
                                     allowed=("implicit", "explicit")),
                    "storage": Option("compact", "explicit box storage: full tree or pointers "
                                      "+ compact list", allowed=("full", "compact")),
-                   "z_bits": Option(0, "depth-slice bits of the key (0: auto, 9 at 1024^2)",
-                                    kind=int, minimum=0, maximum=32),
+                   "z_bits": Option(0, "depth-slice bits of the key (0: auto, 9 at 1024^2; "
+                                    "the whole key has at most 30 bits)",
+                                    kind=int, minimum=0, maximum=30),
                    "depth_slices": Option("clamp", "eq. (1) slices with an open-ended top "
                                           "slice, or 'scaled' so [near, far] fits",
                                           allowed=ch.DEPTH_SLICE_MODES)})

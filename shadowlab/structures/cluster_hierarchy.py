@@ -148,7 +148,8 @@ def cluster_layout(camera, z_bits: int = 0, depth_slices: str = "clamp",
     w, h = camera.resolution
     bx, by = _bits_for(-(-w // 8)), _bits_for(-(-h // 8))
     bz = z_bits or min(max(bx, by) + 2, MAX_KEY_BITS - bx - by)
-    if bx + by + bz > MAX_KEY_BITS:
+    if bz < 1 or bx + by + bz > MAX_KEY_BITS:
+        bz = max(bz, 1)
         raise CapacityError(f"cluster key needs {bx + by + bz} bits at {w}x{h} with "
                             f"z_bits={bz}; at most {MAX_KEY_BITS} (the merge addresses a "
                             f"node's 32 children at int32 offsets): use a smaller z_bits "
