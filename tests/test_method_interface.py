@@ -27,7 +27,7 @@ def test_stack_size_over_its_maximum_exits_2_naming_method_option_value_and_boun
 
 @pytest.mark.parametrize("method,option,value,bound", [
     ("psv", "stack_size", 64, "<= 63"), ("d_hybrid", "stack_size", 0, ">= 1"),
-    ("clustered_ptsv", "z_bits", 33, "<= 32"), ("brute_force", "shadow_eps", -1.0, ">= 0.0")])
+    ("clustered_ptsv", "z_bits", 31, "<= 30"), ("brute_force", "shadow_eps", -1.0, ">= 0.0")])
 def test_numeric_bounds_are_refused_by_the_registry(method, option, value, bound):
     with pytest.raises(MethodError) as info:
         registry.resolve_options(method, {option: value})
