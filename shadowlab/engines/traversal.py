@@ -299,11 +299,10 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
     wave_size = min(wave, total) if wave else total
     key = (tests, prune, level0, stop)
     cap = max(_CAPS.get(key, 0), bucket(wave_size, minimum=MIN_FRONTIER))
+    remedy = "turn on the `prune` option with a smaller `wave`, or render fewer samples"
     while True:
         # a level's children are counted by int32 prefix sums (up to 32 per entry), and the
         # pushed entries are written at int32 offsets
-        remedy = ("turn on the `prune` option with a smaller `wave`, or render fewer "
-                  "samples")
         check_int32(32 * cap, f"traversal children of a {cap:,}-entry frontier", remedy)
         check_int32(out_cap + cap + (2 << WIDE_LOW_BITS), "traversal pass-2 jobs",
                     "use passes=1 or a smaller expand_level, or render fewer samples")

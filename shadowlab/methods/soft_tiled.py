@@ -234,12 +234,17 @@ def frustum_planes(camera, zmin: float, zmax: float) -> np.ndarray:
 
 # ------------------------------------------------------------------ eval kernel
 
+def _defers(defer: bool, mode: str) -> bool:
+    """Whether the eval kernel runs the deferred record-then-flush form (bitmask only)."""
+    return defer and mode == "bitmask"
+
+
 @functools.lru_cache(maxsize=None)
 def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, horizon: bool,
                  mode: str, defer: bool = True, compact: bool = True, record: str = "exact"):
     g = sd.grid(grid_name)
     disk = [np.uint32(wd) for wd in g.disk_mask()]
-    defer = defer and mode == "bitmask"
+    defer = _defers(defer, mode)
     words_per_round = DEFER_WORDS
     record = record if defer else "exact"
 
@@ -788,7 +793,7 @@ def _soft_tiled(timer, scene, gbuf, light, *, culling: CullSettings, precision, 
                            jnp.asarray(ehalf), jnp.asarray(dtype(eps)))
             kernel = _eval_kernel(grid, chunk, projection, not light.is_sun, horizon, mode, defer,
                                   compact, record)
-            deferred = defer and mode == "bitmask"          # as _eval_kernel decides
+            deferred = _defers(defer, mode)
             nchunks = -(-counts // chunk)
             vis = np.zeros((n_tiles, TILE * TILE))
             tests = np.zeros((n_tiles, TILE * TILE), np.int64)
