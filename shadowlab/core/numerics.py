@@ -133,6 +133,13 @@ def materialize(*arrays):
     return out if len(arrays) > 1 else out[0]
 
 
+def cross_columns(a, b):
+    """Cross product of NumPy 3-vectors given as 3 columns [...] each: the columns of
+    ``a x b``, each ``a_i b_j - a_j b_i`` (the products and differences ``np.cross``
+    computes, bit for bit, without its slow reduction-shaped loops on [N, 3] arrays)."""
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
 def column_bounds(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(min, max) [k] of the columns of a NumPy array x [N, k], equal to ``x.min(axis=0)``
     and ``x.max(axis=0)`` (NaN propagates the same way) and about ten times faster on

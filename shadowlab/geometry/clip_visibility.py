@@ -29,6 +29,8 @@ import math
 
 import numpy as np
 
+from ..core.numerics import cross_columns
+
 CULL_MODES = ("off", "paper", "exact")
 MARGIN = 2.0 ** -10
 
@@ -39,11 +41,6 @@ def _dot(x, y):
     for a, b in zip(x[1:], y[1:]):
         total = total + a * b
     return total
-
-
-def _cross(a, b):
-    """a x b of 3-column lists, each component ``a_i b_j - a_j b_i`` (as ``np.cross``)."""
-    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
 def _cols(x):
@@ -93,7 +90,7 @@ def edge_visible(p: np.ndarray, q: np.ndarray, axes: int = 3, margin: float = 0.
 
 def diagonal_id(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, vp: np.ndarray) -> np.ndarray:
     """Algorithm 4: int [N] in {-1, 0, 1, 2}, from the side normal transformed as a vector."""
-    n = _cross(_cols(b - a), _cols(light_h[:3] - light_h[3] * a))
+    n = cross_columns(_cols(b - a), _cols(light_h[:3] - light_h[3] * a))
     s = np.stack([_dot(n, list(vp[i, :3])) for i in range(3)], axis=1)
     u = (s > 0).astype(np.int64)            # floor((1 + sgn s) / sqrt 2)
     u = np.where(u[:, 2:3] == 1, 1 - u, u)
@@ -139,10 +136,10 @@ def corner_rays_cross(a: np.ndarray, b: np.ndarray, light_h: np.ndarray, eye: np
     lp = list(light_h[:3] - light_h[3] * eye)
     lw = light_h[3]
     out = np.zeros(len(a), bool)
-    ab = _cross(ap, bp)
+    ab = cross_columns(ap, bp)
     pi3 = -_dot(lp, ab)
-    la, lb = _cross(lp, ap), _cross(lp, bp)
-    r = _cross([lp[k] - lw * ap[k] for k in range(3)], [bp[k] - ap[k] for k in range(3)])
+    la, lb = cross_columns(lp, ap), cross_columns(lp, bp)
+    r = cross_columns([lp[k] - lw * ap[k] for k in range(3)], [bp[k] - ap[k] for k in range(3)])
     for d in rays:
         d = list(d)
         sa = _dot(la, d)
