@@ -286,3 +286,49 @@ def test_unique_keys_equals_numpy_unique(n, size):
     ref, ref_inv = np.unique(key, return_inverse=True)
     assert np.array_equal(keys, ref) and np.array_equal(inv, ref_inv.ravel())
     assert inv.dtype == np.int64 and np.array_equal(keys[inv], key)
+
+
+@pytest.mark.parametrize("kind", ["ortho", "persp"])
+def test_setup_face_equals_a_per_triangle_loop(kind):
+    """The column-wise set-up against a per-triangle loop over [3, 3] matrices (the
+    homogeneous corners by a matrix product, edge rows by np.cross, the determinant by
+    np.linalg.det, the depth plane by solving for the plane through the corners'
+    deltas): booleans and boxes equal, values to rounding."""
+    for seed in (7, 8, 9):
+        cam, tri = _frame(kind, seed)
+        tri[5, 2] = tri[5, 0] + 0.5 * (tri[5, 1] - tri[5, 0])     # a degenerate triangle
+        face = cam.faces[0]
+        s = lr.setup_face(face, tri)
+        m = lr.homogeneous_matrix(face)
+        r = face.resolution[0]
+        for t in range(len(tri)):
+            p = tri[t] @ m[:, :3].T + m[:, 3]                     # [3, 3] rows (u w, v w, w)
+            w = p[:, 2].copy()
+            if face.orthographic:
+                p[:, 2] = 1.0
+                w[:] = 1.0
+            det = np.linalg.det(p)
+            rows = np.stack([np.cross(p[(i + 1) % 3], p[(i + 2) % 3]) for i in range(3)])
+            rows *= -1.0 if det < 0 else 1.0
+            scale = np.abs(rows).max() + 1e-300
+            np.testing.assert_allclose(s.edges[t], rows, rtol=0, atol=1e-9 * scale)
+            np.testing.assert_allclose(s.absdet[t], abs(det), rtol=1e-9,
+                                       atol=1e-9 * np.abs(p).max() ** 3)
+            assert s.front[t] == (w > 0).all()
+            assert s.ok[t] == ((s.absdet[t] > 0) and (w > 0).any())
+            if s.front[t] and s.ok[t] and abs(det) > 1e-6 * np.abs(p).max() ** 3:
+                uv = p[:, :2] / w[:, None]
+                lo, hi = np.floor(uv.min(0) - 1.0), np.floor(uv.max(0) + 1.0)
+                box = [np.clip(lo[0], 0, r - 1), np.clip(hi[0], -1, r - 1),
+                       np.clip(lo[1], 0, r - 1), np.clip(hi[1], -1, r - 1)]
+                if hi[0] < 0 or lo[0] > r - 1 or hi[1] < 0 or lo[1] > r - 1:
+                    box = [1, 0, 1, 0]
+                assert list(s.bbox[t]) == box
+                # the depth plane interpolates the corners' deltas at their texel points
+                for i in range(3):
+                    got = s.depth[t] @ np.array([uv[i, 0], uv[i, 1], 1.0])
+                    np.testing.assert_allclose(got, s.vertex_delta[t, i], rtol=1e-7,
+                                               atol=1e-9)
+            nz = s.norms[t] > 0
+            np.testing.assert_allclose(s.unit[t][nz], s.edges[t][nz] / s.norms[t][nz, None],
+                                       rtol=1e-15)
