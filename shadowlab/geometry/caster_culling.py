@@ -122,7 +122,9 @@ def outward_normals(scene) -> tuple[list[np.ndarray], list[np.ndarray]]:
 
     A normal is ``(v1 - v0) x (v2 - v0)`` times its object's orientation, the sign of
     the object's signed volume (+1 for a zero volume); flipping a sign is exact, so
-    ``n . d`` has the rounding of the unflipped product times the sign. Columns instead
+    ``n . d`` has the rounding of the unflipped product times the sign (the sums are
+    ``(p0 + p1) + p2``; ``einsum``, used before, may add in another order, which can
+    change the side only of a triangle whose plane contains the light). Columns instead
     of [T, 3] rows: NumPy's ``cross`` and row-wise dot products on [T, 3] arrays cost
     about 160 ms at 1M triangles, the column form a few ms (per frame only the dot
     product is left).
@@ -138,8 +140,10 @@ def outward_normals(scene) -> tuple[list[np.ndarray], list[np.ndarray]]:
         orient = np.sign(np.bincount(scene.object_id, weights=vol6,
                                      minlength=scene.num_objects))
         orient = np.where(orient == 0, 1.0, orient)[scene.object_id]
-        cached = _NORMALS[scene] = ([c * orient for c in n],
-                                    [np.ascontiguousarray(c) for c in v0])
+        cached = ([c * orient for c in n], [np.array(c) for c in v0])
+        for c in cached[0] + cached[1]:
+            c.flags.writeable = False           # shared by every later call on the scene
+        _NORMALS[scene] = cached
     return cached
 
 
