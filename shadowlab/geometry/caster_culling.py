@@ -48,7 +48,7 @@ import itertools
 
 import numpy as np
 
-from ..core.numerics import column_bounds, cross_columns, norms3
+from ..core.numerics import column_bounds, cross_columns, norms3, ordered_dot
 from ..reference.raycast import _orthonormal
 from ..scene.caches import per_scene_cache
 from ..scene.view import DirectionalLight, PointLight, SphereLight, hard_light
@@ -112,7 +112,7 @@ def front_face_culled(scene, light_h: np.ndarray, side: str = "averted") -> np.n
     closed &= light_outside_objects(scene, light_h, closed)
     n, v0 = outward_normals(scene)
     d = [light_h[k] - light_h[3] * v0[k] for k in range(3)]
-    facing = (n[0] * d[0] + n[1] * d[1]) + n[2] * d[2]
+    facing = ordered_dot(n, d, np.multiply)
     return closed[scene.object_id] & (facing > 0 if side == "facing" else facing < 0)
 
 
@@ -134,9 +134,7 @@ def outward_normals(scene) -> tuple[list[np.ndarray], list[np.ndarray]]:
         tri = scene.triangles
         v0, v1, v2 = ([tri[:, i, k] for k in range(3)] for i in range(3))
         n = cross_columns([a - b for a, b in zip(v1, v0)], [a - b for a, b in zip(v2, v0)])
-        vol6 = (v0[0] * (v1[1] * v2[2] - v1[2] * v2[1])
-                + v0[1] * (v1[2] * v2[0] - v1[0] * v2[2])) \
-            + v0[2] * (v1[0] * v2[1] - v1[1] * v2[0])
+        vol6 = ordered_dot(v0, cross_columns(v1, v2), np.multiply)
         orient = np.sign(np.bincount(scene.object_id, weights=vol6,
                                      minlength=scene.num_objects))
         orient = np.where(orient == 0, 1.0, orient)[scene.object_id]
@@ -503,5 +501,5 @@ def subset_scene(scene, keep: np.ndarray):
 
 
 __all__ = ["CULL_MODES", "CULL_SIDES", "CasterCull", "PAD", "behind_receivers", "cull_casters",
-           "front_face_culled", "hull_planes", "outward_normals", "hull_points", "outside_hull", "subset_gbuffer",
-           "subset_scene"]
+           "front_face_culled", "hull_planes", "hull_points", "outside_hull", "outward_normals",
+           "subset_gbuffer", "subset_scene"]

@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from ..core.numerics import cross_columns
+from ..core.numerics import cross_columns, ordered_dot
 
 CULL_MODES = ("off", "paper", "exact")
 MARGIN = 2.0 ** -10
@@ -37,10 +37,7 @@ MARGIN = 2.0 ** -10
 
 def _dot(x, y):
     """``((x0 y0 + x1 y1) + x2 y2) + ...`` of column lists (arrays [N] or scalars)."""
-    total = x[0] * y[0]
-    for a, b in zip(x[1:], y[1:]):
-        total = total + a * b
-    return total
+    return ordered_dot(x, y, np.multiply)
 
 
 def _cols(x):

@@ -54,7 +54,7 @@ import numpy as np
 
 from ..core.capacity import bucket, check_int32, pad, run_offsets
 
-from ..core.numerics import cross_columns
+from ..core.numerics import cross_columns, ordered_dot
 from ..scene.light_camera import LightCamera, LightFace, affine_rows, columns
 
 MODES = ("standard", "inner", "outer")
@@ -144,27 +144,21 @@ def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> Face
             vdelta = [-face.near / hi[2] for hi in h]
     w = [hi[2] for hi in h]
     rows = [cross_columns(h[(i + 1) % 3], h[(i + 2) % 3]) for i in range(3)]
-    det = (h[0][0] * rows[0][0] + h[0][1] * rows[0][1]) + h[0][2] * rows[0][2]
+    det = ordered_dot(h[0], rows[0], np.multiply)
     sign = np.where(det < 0, -1.0, 1.0)
     # the [T, 3, 3] outputs are views of [3, 3, T] buffers whose rows are written in place
-    edge_buf = np.empty((3, 3, n))
-    unit_buf = np.empty((3, 3, n))
+    edge = np.empty((3, 3, n))                                      # edge[i][k]: [T]
+    unit = np.empty((3, 3, n))
     for i in range(3):
         for k in range(3):
-            np.multiply(rows[i][k], sign, out=edge_buf[i, k])
-    edge = edge_buf                                                  # edge[i][k]: [T]
+            np.multiply(rows[i][k], sign, out=edge[i, k])
     absdet = np.abs(det)
     front = (w[0] > 0) & (w[1] > 0) & (w[2] > 0)
     ok = (absdet > 0) & ((w[0] > 0) | (w[1] > 0) | (w[2] > 0))
     safe = np.where(absdet > 0, absdet, 1.0)
-    if face.orthographic:
-        kappa = [vdelta[i] * w[i] for i in range(3)]
-        depth = [((kappa[0] * edge[0][k] + kappa[1] * edge[1][k]) + kappa[2] * edge[2][k])
-                 / safe for k in range(3)]
-    else:
-        kn = -face.near
-        depth = [((kn * edge[0][k] + kn * edge[1][k]) + kn * edge[2][k]) / safe
-                 for k in range(3)]
+    kappa = ([vdelta[i] * w[i] for i in range(3)] if face.orthographic
+             else [-face.near] * 3)
+    depth = [ordered_dot(kappa, edge[:, k], np.multiply) / safe for k in range(3)]
     norm = [np.hypot(e[0], e[1]) for e in edge]
     with np.errstate(divide="ignore", invalid="ignore"):
         wf = [np.where(front, wi, 1.0) for wi in w]
@@ -187,17 +181,17 @@ def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> Face
         flat = np.flatnonzero(norm[i] == 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             for k in range(3):
-                np.divide(edge[i][k], norm[i], out=unit_buf[i, k])
-        unit_buf[i, :2, flat] = 0.0
-        unit_buf[i, 2, flat] = np.where(edge[i][2][flat] >= 0, np.inf, -np.inf)
-    edges = edge_buf.transpose(2, 0, 1)
-    unit = unit_buf.transpose(2, 0, 1)
+                np.divide(edge[i][k], norm[i], out=unit[i, k])
+        unit[i, :2, flat] = 0.0
+        unit[i, 2, flat] = np.where(edge[i][2][flat] >= 0, np.inf, -np.inf)
+    edges = edge.transpose(2, 0, 1)
     norms = np.stack(norm, axis=1)
     for t in np.flatnonzero(ok & ~front):   # reaching behind the light: clip the grid
         bbox[t] = _clipped_box(edges[t], norms[t], r, pad)
     bbox[~ok] = (1, 0, 1, 0)
     return FaceSetup(edges, norms, np.stack(depth, axis=1), bbox, front, ok,
-                     np.stack(vdelta, axis=1), np.stack(w, axis=1), absdet, unit)
+                     np.stack(vdelta, axis=1), np.stack(w, axis=1), absdet,
+                     unit.transpose(2, 0, 1))
 
 
 def _clipped_box(edges: np.ndarray, norms: np.ndarray, r: int, pad: float) -> np.ndarray:
