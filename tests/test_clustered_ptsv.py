@@ -574,3 +574,28 @@ def test_traversal_counters_against_a_loop(method, opts, two):
         assert res2.counters[key] == res.counters[key], key
     assert det2["iterations_pass1"].sum() + det2["iterations_pass2"].sum() == iters.sum()
     assert np.array_equal(res2.lit, res.lit)
+
+
+def test_frontier_buckets_are_remembered_per_scene(monkeypatch):
+    """The traversal's frontier buckets are remembered per scene: a scene whose frontier
+    grew a bucket does not hand it to another scene (every level clears and fills whole
+    buckets, so a larger one costs time), and a scene's own later frames reuse its own."""
+    import shadowlab.methods.clustered_ptsv as cp
+
+    seen = []
+    real = cp.traverse
+
+    def spy(*args, buckets=None, **kwargs):
+        before = dict(buckets)
+        out = real(*args, buckets=buckets, **kwargs)
+        seen.append((buckets, before, dict(buckets)))
+        return out
+
+    monkeypatch.setattr(cp, "traverse", spy)
+    small, big = _setup("gate", 16), _setup("fuzzy", 96)
+    for scene, gbuf, light, _ in (small, big, small):
+        sl.compute_shadows(scene, gbuf, light, method="ptsv")
+    (a1, a_before, a_after), (b, b_before, b_after), (a2, a2_before, _) = seen
+    assert a1 is a2 and b is not a1 and not a_before and not b_before
+    assert max(b_after.values()) > max(a_after.values())     # the big scene grew its own
+    assert a2_before == a_after                              # the small one kept its own

@@ -136,14 +136,16 @@ def _reference(masks, qa, qb, may, *, passes, expand_level, wave, prune):
                 iters1=iters1, iters2=iters2, pushed=pushed, **stats)
 
 
-def _traverse(qa, qb, masks, may, passes, expand_level, wave, prune):
-    """The engine on the range problem, from an empty accepted set and leaf state."""
+def _traverse(qa, qb, masks, may, passes, expand_level, wave, prune, buckets=None):
+    """The engine on the range problem, from an empty accepted set and leaf state (and
+    the smallest buckets unless ``buckets`` remembers others)."""
     data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
             "qa": jnp.asarray(qa), "qb": jnp.asarray(qb), "may_accept": jnp.asarray(may)}
     return tv.traverse(RangeTests(), data, data["rows"], np.arange(len(qa), dtype=np.int32),
                        jnp.zeros((N_ROWS, 32), bool),
                        (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
-                       passes=passes, expand_level=expand_level, wave=wave, prune=prune)
+                       passes=passes, expand_level=expand_level, wave=wave, prune=prune,
+                       buckets=buckets)
 
 
 @pytest.mark.parametrize("passes,expand_level,wave,prune,overflows", [
@@ -152,11 +154,16 @@ def _traverse(qa, qb, masks, may, passes, expand_level, wave, prune):
 def test_engine_visits_the_same_nodes_as_a_python_loop(passes, expand_level, wave, prune,
                                                        overflows):
     cells, masks, qa, qb, may = _problem()
-    tv._CAPS.clear()                        # start from the smallest bucket: overflow retry
-    got = _traverse(qa, qb, masks, may, passes, expand_level, wave, prune)
+    buckets = {}                            # start from the smallest bucket: overflow retry
+    got = _traverse(qa, qb, masks, may, passes, expand_level, wave, prune, buckets)
     want = _reference(masks, qa, qb, may, passes=passes, expand_level=expand_level,
                       wave=wave, prune=prune)
     assert (want["frontier_max"] > tv.MIN_FRONTIER) == overflows   # the retry path ran
+    # the bucket that sufficed is remembered in the caller's dict, and only there
+    grown = max(v for k, v in buckets.items() if k[0] != "out")
+    assert grown >= want["frontier_max"] and (grown > tv.MIN_FRONTIER) == overflows
+    again = _traverse(qa, qb, masks, may, passes, expand_level, wave, prune, buckets)
+    np.testing.assert_array_equal(again.counts, got.counts)
     assert want["counts"][1] > 0 and want["leaf_visits"] > 0
     np.testing.assert_array_equal(np.asarray(got.accepted), want["accepted"])
     visits, item_sum = jax.device_get(got.leaf_state)
@@ -189,7 +196,6 @@ def test_counters_that_carry_keep_every_total(two_bit_counters, passes, expand_l
     """The counters, leaf visits and pushed jobs are two-word totals (so a frame's node
     tests may pass 2**31): with a carry every 4 counts they still equal the Python loop."""
     cells, masks, qa, qb, may = _problem()
-    tv._CAPS.clear()
     got = _traverse(qa, qb, masks, may, passes, expand_level, wave, prune)
     want = _reference(masks, qa, qb, may, passes=passes, expand_level=expand_level,
                       wave=wave, prune=prune)
@@ -206,13 +212,9 @@ def test_a_frontier_whose_children_int32_cannot_count_is_refused():
     """A frontier bucket of 2**26 entries (2**31 children) is refused with a clear error
     before anything is allocated, not run with wrapping prefix sums."""
     cells, masks, qa, qb, may = _problem()
-    tv._CAPS.clear()
-    tv._CAPS[(RangeTests(), False, 0, D + 1)] = 2 ** 26
-    try:
-        with pytest.raises(capacity.CapacityError, match="frontier.*prune"):
-            _traverse(qa, qb, masks, may, 1, 1, None, False)
-    finally:
-        tv._CAPS.clear()
+    buckets = {(RangeTests(), False, 0, D + 1): 2 ** 26}
+    with pytest.raises(capacity.CapacityError, match="frontier.*prune"):
+        _traverse(qa, qb, masks, may, 1, 1, None, False, buckets)
 
 
 def test_compaction_keeps_entry_major_child_minor_order():

@@ -17,7 +17,7 @@ it is tested. Vocabulary:
 
 One step at level ``l`` tests the 32 children of every frontier entry with
 ``tests.children`` (chunks of :data:`EXPAND_CHUNK` entries, in a loop whose trip count
-follows ``n``, so a generous bucket costs memory, not time). Each child is one of:
+follows ``n``). Each child is one of:
 accepted (marked in ``accepted``, a bool [rows, 32] array with one row per inner node,
 ``row_offsets[l]`` the first row of level ``l``), intersected (goes on to the next
 frontier) or anything else (dropped). The intersected children are compacted,
@@ -30,8 +30,13 @@ last level the surviving entries are leaf jobs, handed to ``tests.leaves`` in ch
 Capacity: a level whose frontier would exceed ``cap`` records its true size in
 ``need`` (the extra entries are dropped and the state is not used); :func:`run_pass`
 then retries with a bigger bucket (4x at least), so nothing is ever truncated silently.
-Buckets are remembered per (tests, options) and only grow, so later frames reuse the
-compiled kernel.
+A bucket is not free beyond ``n``: every level clears and fills bucket-sized arrays
+(the children's words and prefix sums, the next frontier), so a bucket 32x too large
+made ``ptsv``'s traversal 3.6x slower (sphere_grid 99k after fuzzy 100k in one process,
+373 -> 1,338 ms). The caller passes a dict (``buckets``) that remembers, per (tests,
+options), the buckets that sufficed; they only grow, so later frames of a scene reuse
+the compiled kernel without retries. Methods keep one such dict per scene, so that one
+scene's bucket never slows another's.
 
 Waves and pruning: jobs run in waves of ``wave`` jobs in job order. With ``prune`` the
 node test sees ``accepted`` as it was when the wave started (the accepts of earlier
@@ -277,12 +282,9 @@ def pass_kernel(tests: NodeTests, prune: bool, level0: int, stop: int, cap: int,
     return jax.jit(run)
 
 
-_CAPS: dict = {}
-
-
 def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_item: np.ndarray,
              jobs_node: np.ndarray, n_jobs: int, *, level0: int, stop: int,
-             wave: int | None, prune: bool, out_cap: int, timer=None,
+             wave: int | None, prune: bool, out_cap: int, buckets: dict, timer=None,
              compile_stage: str = "traverse_compile"):
     """One traversal pass (see :func:`pass_kernel`), retried with a bigger frontier
     bucket until nothing overflows.
@@ -290,7 +292,8 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
     Args:
         jobs_item, jobs_node: host arrays [n_jobs] (int32 items, uint32 keys at
             ``level0``). wave: jobs per wave (None: one wave). out_cap: capacity for
-            pushed entries (grown on overflow). timer: a ``StageTimer`` whose
+            pushed entries (grown on overflow). buckets: the remembered frontier
+            buckets (see the module docstring), read and updated. timer: a ``StageTimer`` whose
             ``compile_stage`` accumulates compile seconds (or None).
     Returns:
         the kernel's final state (device arrays, see :func:`pass_kernel`) and out_cap.
@@ -298,7 +301,7 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
     total = max(n_jobs, 1)
     wave_size = min(wave, total) if wave else total
     key = (tests, prune, level0, stop)
-    cap = max(_CAPS.get(key, 0), bucket(wave_size, minimum=MIN_FRONTIER))
+    cap = max(buckets.get(key, 0), bucket(wave_size, minimum=MIN_FRONTIER))
     remedy = "turn on the `prune` option with a smaller `wave`, or render fewer samples"
     while True:
         # a level's children are counted by int32 prefix sums (up to 32 per entry), and the
@@ -330,7 +333,7 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
             cap = want if want > MAX_FRONTIER else min(max(want, 4 * cap), MAX_FRONTIER)
         if out_n > out_cap:
             out_cap = bucket(out_n, minimum=MIN_FRONTIER)
-    _CAPS[key] = cap
+    buckets[key] = cap
     return st, out_cap
 
 
@@ -362,7 +365,7 @@ class Traversal:
 
 def traverse(tests: NodeTests, data, row_offsets, items: np.ndarray, accepted, leaf_state, *,
              passes: int, expand_level: int, wave: int | None, prune: bool,
-             timer=None) -> Traversal:
+             buckets: dict | None = None, timer=None) -> Traversal:
     """Traverse one job per item from the root (pass 1) and, with ``passes=2``, the
     (item, node) jobs pass 1 pushed at ``expand_level`` (pass 2) down to the leaves.
 
@@ -374,14 +377,19 @@ def traverse(tests: NodeTests, data, row_offsets, items: np.ndarray, accepted, l
         passes: 1 or 2; expand_level: the level where pass 1 stops (1..D).
         wave: jobs per wave (None: one wave); prune: the node test sees earlier waves'
             accepts.
+        buckets: the frontier and push buckets that sufficed in earlier calls, read and
+            grown in place (a dict the caller keeps per scene); None: start from the
+            smallest buckets.
     """
+    buckets = {} if buckets is None else buckets
     d = tests.levels
     stop = expand_level if passes == 2 else d + 1
     key2 = ("out", tests, prune, expand_level)
-    out_cap = _CAPS.get(key2, MIN_FRONTIER) if passes == 2 else 0
+    out_cap = buckets.get(key2, MIN_FRONTIER) if passes == 2 else 0
     st1, out_cap = run_pass(tests, data, row_offsets, accepted, leaf_state, items,
                             np.zeros(len(items), np.uint32), len(items), level0=0, stop=stop,
-                            wave=wave, prune=prune, out_cap=out_cap, timer=timer)
+                            wave=wave, prune=prune, out_cap=out_cap, buckets=buckets,
+                            timer=timer)
     host = jax.device_get({k: st1[k] for k in ("iters", "counts", "fmax", "leaf_visits",
                                                 "out_n")})
     iters1 = host["iters"][: len(items)]
@@ -392,13 +400,13 @@ def traverse(tests: NodeTests, data, row_offsets, items: np.ndarray, accepted, l
     iters2 = np.zeros(0, np.int64)
     st = st1
     if passes == 2:
-        _CAPS[key2] = out_cap
+        buckets[key2] = out_cap
         m = int(wide_total(host["out_n"]))
         items2 = np.asarray(st1["out_item"])[:m]
         nodes2 = np.asarray(st1["out_node"])[:m]
         st, _ = run_pass(tests, data, row_offsets, st1["accepted"], st1["leaf"], items2,
                          nodes2, m, level0=expand_level, stop=d + 1, wave=wave, prune=prune,
-                         out_cap=0, timer=timer)
+                         out_cap=0, buckets=buckets, timer=timer)
         h2 = jax.device_get({k: st[k] for k in ("iters", "counts", "fmax", "leaf_visits")})
         iters2 = h2["iters"][:m]
         counts += wide_total(h2["counts"])

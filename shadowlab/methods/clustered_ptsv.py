@@ -65,8 +65,12 @@ from ..core.frame import (
 from .registry import Option, register
 from ..core.result import ShadowResult
 from ..geometry.volume_planes import _MARGIN_ULPS, post_perspective_planes
+from ..scene.caches import per_scene_cache
 
 TOP_JOBS = 1024
+#: per scene: the traversal's frontier buckets that sufficed (``engines.traversal``); a
+#: bucket grown for one scene would slow the traversal of every other
+_BUCKETS = per_scene_cache()
 
 
 # --------------------------------------------------------------------------- setup
@@ -429,7 +433,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                            accepted, (jnp.zeros((p_tiles, tree.tile_pixels), bool),
                                       jnp.zeros((p_tiles, tree.tile_pixels), jnp.int32)),
                            passes=passes, expand_level=level_l,
-                           wave=wave if prune else None, prune=bool(prune), timer=timer)
+                           wave=wave if prune else None, prune=bool(prune),
+                           buckets=_BUCKETS.setdefault(scene, {}), timer=timer)
             tile_shadow, tile_tests = run.leaf_state
             jax.block_until_ready(tile_shadow)
         iters1, iters2 = run.iterations_pass1, run.iterations_pass2
