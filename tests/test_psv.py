@@ -8,6 +8,7 @@ from shadowlab.core.capacity import CapacityError
 from shadowlab.methods import psv as psvm
 from shadowlab.structures import top_tree as tt
 from shadowlab.core.frame import precision_mode, view_samples
+from shadowlab.scene import caches
 from shadowlab.scene.procedural import default_view
 
 METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
@@ -72,7 +73,6 @@ def test_reused_tree_gives_the_same_result(precision):
     """reuse_tree keeps the TOP tree of a static light: the next call skips the build
     and equals a rebuilt run; another light, build option, camera (with
     frustum_culling) or a dropped cache builds anew."""
-    from shadowlab.scene import caches
 
     scene, light, gbuf, _ = _setup("gate")          # a scene of its own: nothing cached
     fresh = sl.compute_shadows(scene, gbuf, light, method="d_hybrid", precision=precision)
@@ -243,6 +243,27 @@ def test_lane_tiles_keep_every_result(tile, precision):
         tiled = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision,
                                    lane_tile=tile)
         _same(rows, tiled)
+
+
+@pytest.mark.parametrize("name", ["fuzzy", "gate"])
+def test_breadth_first_node_order_keeps_every_result(name, precision):
+    """The query on the breadth-first renumbered tree: the same lit mask and every
+    counter (visits per pixel, stack use, overflows, switches) as on the tree as built;
+    "auto" renumbers only a kept tree (``reuse_tree``)."""
+    scene, light, gbuf, _ = _scene(name)
+    for m in METHODS:
+        built = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision,
+                                   node_order="build")
+        bfs = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision,
+                                 node_order="breadth_first")
+        _same(built, bfs)
+        assert "renumber" in bfs.timings and "renumber" not in built.timings
+    auto = sl.compute_shadows(scene, gbuf, light, method="d_stackless", precision=precision)
+    kept = sl.compute_shadows(scene, gbuf, light, method="d_stackless", precision=precision,
+                              reuse_tree=True)
+    assert "renumber" not in auto.timings and "renumber" in kept.timings
+    _same(auto, kept)
+    caches.drop(scene)
 
 
 def test_lane_tile_reaches_the_query(monkeypatch):

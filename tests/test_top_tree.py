@@ -1,5 +1,7 @@
 """TOP tree: parallel build == sequential build node for node, depth, distances, stats."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -130,3 +132,69 @@ def test_insertion_orders():
     assert sorted(a) == list(range(50))
     with pytest.raises(ValueError):
         tt.insertion_order(3, "bogus", 0)
+
+
+def _plain_breadth_first(tree):
+    """Volume ids breadth-first from the root with a queue, one node link at a time."""
+    import collections
+    order, queue = [], collections.deque([tree.root // 4] if tree.root >= 0 else [])
+    while queue:
+        v = queue.popleft()
+        order.append(v)
+        for node in range(4 * v, 4 * v + 4):
+            for links in (tree.pos, tree.inter):
+                if links[node] >= 0:
+                    queue.append(int(links[node]) // 4)
+    return order
+
+
+@pytest.mark.parametrize("name,params", [
+    ("soup", {"count": 60}),
+    ("gate", {"trees": 2, "leaves_per_tree": 40, "bars": 3}),
+])
+def test_breadth_first_renumbering_keeps_the_tree(name, params, precision):
+    """The breadth-first order equals a plain queue's, the renumbered tree has the same
+    fields per volume under the new ids (links mapped), and renumbering back restores
+    the tree field for field."""
+    _, _, (tree, _) = _trees(name, params, precision, "random")
+    vols = tt.breadth_first_volumes(tree)
+    plain = _plain_breadth_first(tree)
+    merged = np.flatnonzero(tree.status == tt.STATUS_MERGED)
+    assert list(vols[: len(plain)]) == plain and len(plain) == len(merged) > 50
+    assert sorted(vols.tolist()) == list(range(tree.capacity))
+    assert list(vols[len(plain):]) == sorted(set(range(tree.capacity)) - set(plain))
+    new = tree.renumbered(vols)
+    new_id = np.argsort(vols)
+    assert new.root == 0 and tree.root == 4 * vols[0]
+
+    def mapped(link):
+        return np.where(link >= 0, 4 * new_id[link // 4] + link % 4, -1)
+
+    for v in range(tree.capacity):               # per volume, a plain loop
+        w = new_id[v]
+        for f in ("depth", "level", "status", "tri", "bound"):
+            assert getattr(new, f)[w] == getattr(tree, f)[v], f
+        assert new.anc[w] == mapped(tree.anc[v])
+        for q in range(4):
+            old, now = 4 * v + q, 4 * w + q
+            assert np.array_equal(new.plane[now], tree.plane[old])
+            assert new.wedge[now] == tree.wedge[old]
+            assert new.pos[now] == mapped(tree.pos[old])
+            assert new.inter[now] == mapped(tree.inter[old])
+    assert new.stats() == tree.stats()
+    back = new.renumbered(np.argsort(vols))
+    assert back.same_as(tree) == [] and np.array_equal(back.bound, tree.bound)
+    with pytest.raises(ValueError, match="permutation"):
+        tree.renumbered(np.zeros(tree.capacity, np.int64))
+
+
+def test_breadth_first_of_an_empty_tree_and_a_corrupt_one():
+    _, _, (tree, _) = _trees("soup", {"count": 60}, "float32", "random")
+    empty = dataclasses.replace(tree, root=-1)
+    assert np.array_equal(tt.breadth_first_volumes(empty), np.arange(tree.capacity))
+    assert empty.renumbered(np.arange(tree.capacity)[::-1]).root == -1
+    child = int(tree.pos[tree.pos >= 0][0])
+    twice = tree.inter.copy()
+    twice[tree.root] = child                    # a second parent link to one volume
+    with pytest.raises(RuntimeError, match="reached twice"):
+        tt.breadth_first_volumes(dataclasses.replace(tree, inter=twice))

@@ -489,7 +489,8 @@ def run(method: str, scene, gbuf, light, *, schedule: str = "threads", device=No
     """A PSV method run with the kernels: ``ShadowResult`` with the JAX method's counters.
 
     ``options`` are the registry options of ``method`` (defaults filled in the same way);
-    ``precision`` must be float32 and ``build`` is ignored (the kernel builds). Counters
+    ``precision`` must be float32; ``build`` and ``node_order`` are ignored (the kernel
+    builds, and queries its tree as built: the numbering changes no counter). Counters
     are those of ``methods.psv`` except ``build_rounds`` and ``query_chunks`` (no rounds
     or chunks here; ``tree_reused`` is always 0: the kernel builds on every call), plus
     the kernel's ``cas_failures``; timings: ``build``, ``query``

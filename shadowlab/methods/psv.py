@@ -123,9 +123,15 @@ def build_input(scene, light, camera, samples, *, dtype, shadow_eps, bias, order
 
 def build_tree(scene, light, camera, samples, *, dtype, shadow_eps, bias, order, seed, wedge,
                classify_ulps, face_culling="none", frustum_culling=False, build="parallel",
-               timer=None):
+               node_order="build", timer=None):
     """:func:`build_input`, then the build; returns (TopTree, samples' scale [S] (float64),
-    culled). The JAX build is timed as ``build`` (and ``build_compact``)."""
+    culled). The JAX build is timed as ``build`` (and ``build_compact``).
+
+    ``node_order``: "build" keeps the build's volume ids (insertion ranks);
+    "breadth_first" renumbers the volumes breadth-first from the root
+    (``top_tree.breadth_first_volumes``; timed as ``renumber``): the same tree, the
+    same visits and results, with the nodes near the root close together in memory.
+    """
     timer = timer if timer is not None else StageTimer()
     inp, scale, culled = build_input(
         scene, light, camera, samples, dtype=dtype, shadow_eps=shadow_eps, bias=bias,
@@ -136,7 +142,27 @@ def build_tree(scene, light, camera, samples, *, dtype, shadow_eps, bias, order,
             tree = tt.build_sequential(inp, wedge)
     else:
         tree = tt.build_parallel(inp, wedge, timer)
+    if node_order == "breadth_first":
+        with timer.stage("renumber"):
+            tree = tree.renumbered(tt.breadth_first_volumes(tree))
+    elif node_order != "build":
+        raise ValueError(f"node_order must be 'breadth_first' or 'build'; got {node_order!r}")
     return tree, scale, culled
+
+
+#: volume numberings of a built tree for the query (see :func:`build_tree`); "auto" is
+#: breadth-first for a kept tree (``reuse_tree``), the build's otherwise
+NODE_ORDERS = ("auto", "breadth_first", "build")
+
+
+def node_order_for(option: str, reuse_tree: bool) -> str:
+    """The numbering the ``node_order`` option means: "auto" renumbers a tree that is
+    kept for later calls (the renumbering, 22-28 ms at 100k casters and about 0.4 s at
+    1M, is paid once) and leaves a tree built for one call as built (there it costs
+    about what it saves; docs/psv.md, "Node order")."""
+    if option == "auto":
+        return "breadth_first" if reuse_tree else "build"
+    return option
 
 
 # --------------------------------------------------------------------------- queries
@@ -716,6 +742,12 @@ _COMMON = {
     "bias": Option("receiver", "self-shadowing bias (see brute_force)", allowed=BIAS_MODES),
     "build": Option("parallel", "'parallel' (JAX rounds) or 'sequential' (NumPy reference, "
                     "slow)", allowed=("parallel", "sequential")),
+    "node_order": Option("auto", "numbering of the tree's shadow volumes for the query: "
+                         "'breadth_first' from the root (the nodes near the root share "
+                         "cache lines; the same visits, results and counters), 'build' "
+                         "(insertion rank, as built) or 'auto' (breadth-first when "
+                         "reuse_tree keeps the tree, as built otherwise)",
+                         allowed=NODE_ORDERS),
     "chunk": Option(32, "node visits per lane between compactions of unfinished lanes",
                     kind=int, minimum=1),
     "lane_tile": Option(1, "query lanes in square pixel tiles of this side (lanes of a "
@@ -733,7 +765,7 @@ _COMMON = {
 
 #: options the TOP tree depends on (besides the scene, the light and the precision)
 _TREE_OPTIONS = ("shadow_eps", "bias", "order", "seed", "wedge", "classify_ulps",
-                 "face_culling", "frustum_culling", "build")
+                 "face_culling", "frustum_culling", "build", "node_order")
 #: per scene: (key, (tree, culled)) of the latest tree built with ``reuse_tree``
 #: (``scene.caches.drop`` forgets it, as it forgets Embree's BVH)
 _TREES = per_scene_cache()
@@ -767,7 +799,8 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
                 scene, light, gbuf.camera, samples, dtype=dtype, shadow_eps=o["shadow_eps"],
                 bias=o["bias"], order=o["order"], seed=o["seed"], wedge=o["wedge"],
                 classify_ulps=o["classify_ulps"], face_culling=o["face_culling"],
-                frustum_culling=o["frustum_culling"], build=o["build"], timer=timer)
+                frustum_culling=o["frustum_culling"], build=o["build"],
+                node_order=node_order_for(o["node_order"], o["reuse_tree"]), timer=timer)
             if key is not None:
                 _TREES[scene] = (key, (tree, culled))
         with timer.stage("query_setup"):
@@ -836,8 +869,8 @@ _COUNTERS = ("samples", "casters", "culled_triangles", "shadowed", "lit", "visit
 _STACK_COUNTERS = ("stack_max", "stack_max_per_pixel")
 _OVERFLOW_COUNTERS = ("stack_overflows", "overflow_pixels", "stack_overflows_per_pixel")
 _SWITCH_COUNTERS = ("stackless_switches", "stackless_switches_per_pixel")
-_STAGES = ("samples", "casters", "build_setup", "build", "build_compact", "query_setup",
-           "query", "query_compact", "output")
+_STAGES = ("samples", "casters", "build_setup", "build", "build_compact", "renumber",
+           "query_setup", "query", "query_compact", "output")
 _SLCAP = {"stackless_cap": Option("paper", "stackless query at a cap node with an "
                                   "intersection child: 'paper' descends into it (Algorithm 3), "
                                   "'public' never does (the public code; loses occluders)",

@@ -173,6 +173,68 @@ class TopTree:
             out.append("root")
         return out
 
+    def renumbered(self, volumes: np.ndarray) -> "TopTree":
+        """The same tree with shadow volume ``volumes[i]`` renumbered ``i``.
+
+        ``volumes``: int [C], a permutation of the volume ids (for instance
+        :func:`breadth_first_volumes`). Every per-node and per-volume field moves with
+        its volume and every link (``pos``, ``inter``, ``anc``, ``root``) is remapped, so
+        a query visits the same nodes in the same order; only the ids change. Volume
+        ids are then no longer insertion ranks (``count`` still counts the casters).
+        """
+        c = self.capacity
+        volumes = np.asarray(volumes, np.int64)
+        new_id = np.full(c, -1, np.int64)
+        new_id[volumes] = np.arange(volumes.size)
+        if volumes.shape != (c,) or (c and new_id.min() < 0):
+            raise ValueError(f"volumes must be a permutation of the {c} volume ids; "
+                             f"got shape {volumes.shape}")
+        # new id of every old node, and -1 at index -1, so that a link of -1 stays -1
+        relink = np.empty(4 * c + 1, np.int32)
+        relink[:-1] = (4 * new_id[:, None] + np.arange(4)).ravel()
+        relink[-1] = -1
+
+        def per_node(a):           # gathered in blocks of a volume's four nodes
+            return np.take(a.reshape(c, 4, *a.shape[1:]), volumes, axis=0).reshape(a.shape)
+
+        return dataclasses.replace(
+            self, plane=per_node(self.plane), pos=relink[per_node(self.pos)],
+            inter=relink[per_node(self.inter)], wedge=per_node(self.wedge),
+            depth=self.depth[volumes], anc=relink[self.anc[volumes]],
+            level=self.level[volumes], status=self.status[volumes], tri=self.tri[volumes],
+            bound=self.bound[volumes], root=int(relink[self.root]))
+
+
+def breadth_first_volumes(tree: TopTree) -> np.ndarray:
+    """int64 [C]: the tree's shadow volumes breadth-first from the root volume, then
+    the volumes it does not hold (dropped casters, padding) in rank order.
+
+    The children of a volume are taken node by node (edge nodes, then the cap), each
+    node's positive child before its intersection child. Renumbered in this order
+    (:meth:`TopTree.renumbered`), the volumes near the root, which every query visits,
+    share cache lines and pages, and the volumes of one level lie together.
+    """
+    c = tree.capacity
+    if tree.root < 0:
+        return np.arange(c, dtype=np.int64)
+    children = np.stack([tree.pos.reshape(c, 4), tree.inter.reshape(c, 4)],
+                        axis=2).reshape(c, 8)
+    levels, front, reached = [], np.array([tree.root >> 2], np.int64), 1
+    while front.size:
+        levels.append(front)
+        below = children[front].ravel()
+        front = below[below >= 0].astype(np.int64) >> 2
+        reached += front.size
+        if reached > c:
+            break
+    held = np.concatenate(levels)
+    outside = np.ones(c, bool)
+    outside[held] = False
+    if reached > c or held.size + np.count_nonzero(outside) != c:
+        raise RuntimeError("TOP tree: a shadow volume is reached twice from the root "
+                           "(a corrupt tree: every volume has one parent link)")
+    return np.concatenate([held, np.flatnonzero(outside)])
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class BuildInput:
