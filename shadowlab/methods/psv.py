@@ -772,8 +772,10 @@ _TREES = per_scene_cache()
 
 
 def _tree_key(light, camera, dtype, o: dict) -> tuple:
+    # the numbering the option resolves to: "auto" and "breadth_first" keep one tree
     key = (hard_light(light).homogeneous.astype(np.float64).tobytes(), np.dtype(dtype).str,
-           *(o[k] for k in _TREE_OPTIONS))
+           *(o[k] for k in _TREE_OPTIONS if k != "node_order"),
+           node_order_for(o["node_order"], o["reuse_tree"]))
     if o["frustum_culling"]:
         key += (np.asarray(camera.view_projection(), np.float64).tobytes(),)
     return key
