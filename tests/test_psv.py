@@ -188,9 +188,12 @@ def test_compactions_and_spare_stacks_keep_every_result(monkeypatch, request, qu
     import jax.numpy as jnp
 
     if tile:
+        # Both kernels trace the tile size into their code (the compaction its stack
+        # layout): kernels of the default tile must not run here, nor these after.
         monkeypatch.setattr(psvm, "TILE", tile)
-        psvm._chunk_kernel.cache_clear()        # kernels traced with the default tile
-        request.addfinalizer(psvm._chunk_kernel.cache_clear)
+        for cached in (psvm._chunk_kernel, psvm._compact_kernel):
+            cached.cache_clear()
+            request.addfinalizer(cached.cache_clear)
     tiles = []
     real_tile = psvm.tile_size
     monkeypatch.setattr(psvm, "tile_size",
