@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import shadowlab as sl
+from shadowlab.core import timing
 from shadowlab.core.capacity import CapacityError
 from shadowlab.methods import psv as psvm
 from shadowlab.structures import top_tree as tt
@@ -234,6 +235,43 @@ def test_compactions_and_spare_stacks_keep_every_result(monkeypatch, request, qu
         assert (lit, visited, smax) == (not again["shadow"][i], again["visited"][i],
                                         again["stack_max"][i]), i
         assert (ov, sw) == (again["overflows"][i], again["switches"][i]), i
+
+
+def test_chunk_lengths_follow_the_schedule():
+    """Fixed: ``chunk`` every time. Adaptive: ``chunk`` first, half of it after a
+    check that compacted, doubling up to twice ``chunk`` after checks that did not."""
+    fixed = psvm.chunk_lengths(32, "fixed")
+    assert [next(fixed)] + [fixed.send(c) for c in (True, False, False)] == [32] * 4
+    ada = psvm.chunk_lengths(32, "adaptive")
+    got = [next(ada)] + [ada.send(c) for c in (False, False, True, False, False, False, True)]
+    assert got == [32, 64, 64, 16, 32, 64, 64, 16]
+    one = psvm.chunk_lengths(1, "adaptive")
+    assert [next(one)] + [one.send(c) for c in (True, False, False)] == [1, 1, 2, 2]
+
+
+def test_chunk_schedules_keep_every_result(precision):
+    """The adaptive chunk lengths change only when lanes are checked and compacted:
+    the lit mask and every counter but ``query_chunks`` equal the fixed schedule's, for
+    every query; one compiled chunk kernel per bucket serves every length."""
+    scene, light, gbuf, _ = _scene("fuzzy")
+    for m in METHODS:
+        fixed = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision,
+                                   chunk=4, chunk_schedule="fixed")
+        ada = sl.compute_shadows(scene, gbuf, light, method=m, precision=precision,
+                                 chunk=4)
+        assert fixed.counters["query_chunks"] != ada.counters["query_chunks"], m
+        fixed.counters.pop("query_chunks"), ada.counters.pop("query_chunks")
+        _same(fixed, ada)
+    tree, samples, pts, sc, key, light_h = _query_inputs(*_scene("fuzzy")[:3])
+    kw = dict(query="stackless", depth_test=True, wedge="conservative", stack_size=0)
+    psvm._chunk_kernel.cache_clear()
+    got = psvm.run_query(tree, pts[:900], sc[:900], key[:900], light_h, chunk=2, **kw)
+    assert got["chunks"] > 3                     # lengths 2, 4 (and on): one bucket
+    kernel = psvm._chunk_kernel("stackless", True, "conservative", 0, "lose", "paper",
+                                "inside", bool(light_h[3] == 0))
+    assert sum(fn is kernel for fn, _ in timing._COMPILED) == 1
+    with pytest.raises(ValueError, match="schedule must be one of"):
+        psvm.run_query(tree, pts, sc, key, light_h, schedule="geometric", **kw)
 
 
 @pytest.mark.parametrize("tile", [5, 8])

@@ -7,18 +7,14 @@ usage: python docs/repro/psv_lane_tile_ab.py RES OUT.json TILES scene[:n=..,k=..
 import json, os, statistics, sys, time
 import numpy as np
 import shadowlab as sl
-from shadowlab.scene.procedural import default_view
+from _psv_frames import frame
 
 res, out, tiles = int(sys.argv[1]), sys.argv[2], [int(t) for t in sys.argv[3].split(",")]
 METHODS = ["psv", "d_psv", "d_stackless", "d_hybrid"]
 REPEATS = 3
 rows = []
 for spec in sys.argv[4:]:
-    name, _, params = spec.partition(":")
-    kw = {k: int(v) for k, v in (p.split("=") for p in params.split(",") if p)}
-    scene = sl.load_scene(name, **kw)
-    view = default_view(name, scene)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(res, res)))
+    scene, view, gbuf = frame(spec, res)
     for m in METHODS:
         row = {"scene": spec, "triangles": scene.num_triangles, "method": m,
                "load_start": os.getloadavg()[0]}

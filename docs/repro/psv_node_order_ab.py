@@ -8,39 +8,23 @@ import json, os, statistics, sys, time
 
 import numpy as np
 
-import shadowlab as sl
-from shadowlab.core.frame import localize, view_samples
+from _psv_frames import QUERIES, frame, query_inputs
 from shadowlab.methods import psv as psvm
 from shadowlab.methods.registry import call_options
-from shadowlab.scene.procedural import default_view
-from shadowlab.scene.view import hard_light
 from shadowlab.structures import top_tree as tt
 
 res, pairs, out = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
-QUERIES = {"psv": ("stack", False), "d_psv": ("stack", True),
-           "d_stackless": ("stackless", True), "d_hybrid": ("hybrid", True)}
 rows = []
 for spec in sys.argv[4:]:
-    name, _, params = spec.partition(":")
-    kw = {k: int(v) for k, v in (p.split("=") for p in params.split(",") if p)}
-    scene = sl.load_scene(name, **kw)
-    view = default_view(name, scene)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(res, res)))
-    local = localize(scene, gbuf, view.light, "light")       # as the methods (frame "light")
-    o = call_options("psv", {})
-    samples = view_samples(local.gbuf, local.light)
-    light_h = hard_light(local.light).homogeneous
-    built, scale, _ = psvm.build_tree(
-        local.scene, local.light, local.gbuf.camera, samples, dtype=np.float32,
-        shadow_eps=o["shadow_eps"], bias=o["bias"], order=o["order"], seed=o["seed"],
-        wedge=o["wedge"], classify_ulps=o["classify_ulps"], face_culling=o["face_culling"])
+    scene, view, gbuf = frame(spec, res)
+    q = query_inputs(scene, view, gbuf)
+    built, o = q["tree"], q["o"]
+    scale, key, pts, light_h = q["scale"], q["key"], q["points"], q["light_h"]
     t0 = time.perf_counter()
     volumes = tt.breadth_first_volumes(built)
     t1 = time.perf_counter()
     bfs = built.renumbered(volumes)
     t2 = time.perf_counter()
-    key = tt.light_key(samples.position, light_h)
-    pts = samples.position.astype(np.float32)
     for m, (query, depth) in QUERIES.items():
         stack = call_options(m, {}).get("stack_size", 0)
 

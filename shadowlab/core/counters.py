@@ -104,7 +104,8 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("intersection_triangles", "int", "merged casters lying in some intersection subtree "
             "(ancestor link set)"),
     Counter("build_rounds", "int", "rounds of the parallel TOP-tree build"),
-    Counter("query_chunks", "int", "fixed-trip query chunks run (between lane compactions)"),
+    Counter("query_chunks", "int", "query chunk kernels run (checks for finished lanes between "
+            "them; lengths from the chunk_schedule option)"),
     Counter("tree_reused", "int", "1 when the TOP tree of an earlier call was reused "
             "(reuse_tree, static light and geometry), else 0"),
     # tiled soft shadows (soft_tiled, soft_overlap_sum; docs/soft_tiled.md)

@@ -169,9 +169,11 @@ def node_order_for(option: str, reuse_tree: bool) -> str:
 
 @functools.lru_cache(maxsize=None)
 def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, overflow: str,
-                  stackless_cap: str, edge_tie: str, steps: int, directional: bool,
-                  fast: bool = False):
+                  stackless_cap: str, edge_tie: str, directional: bool, fast: bool = False):
     """A jitted function running ``steps`` node visits of every lane of a bucket.
+
+    ``steps`` is an int32 argument, not a compile-time constant: one compiled kernel per
+    bucket size serves every chunk length of the schedule (:func:`chunk_lengths`).
 
     Layout for speed on XLA/CPU (measured, docs/psv.md): every node field is its own
     1D array read with one ``promise_in_bounds`` gather per field (row gathers of an
@@ -194,7 +196,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
     def g(a, i):
         return a.at[i].get(mode="promise_in_bounds")
 
-    def run_tile(state, tree, px, py, pz, scale, key, light, tol):
+    def run_tile(state, tree, px, py, pz, scale, key, light, tol, steps):
         if ROWS[query]:
             rows, anc = tree
         else:
@@ -367,14 +369,14 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
 
         return jax.lax.fori_loop(0, steps, step, state)
 
-    def run(state, tree, pts, scale, key, light, tol):
+    def run(state, tree, pts, scale, key, light, tol, steps):
         # Lanes run in tiles of at most TILE (a loop over tiles, each running all
         # ``steps``), so that a tile's state and stack stay in cache during its steps.
         b = pts.shape[0]
         t = tile_size(b)
         px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
         if t == b:
-            return run_tile(state, tree, px, py, pz, scale, key, light, tol)
+            return run_tile(state, tree, px, py, pz, scale, key, light, tol, steps)
 
         def tile(i, st):
             width = {name: (k + 1) * t if name == "stack" else t for name in st}
@@ -383,7 +385,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             cut = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=i * t,
                                     slice_size=t)
             sub = run_tile(sub, tree, cut(px), cut(py), cut(pz), cut(scale), cut(key), light,
-                           tol)
+                           tol, steps)
             return {name: jax.lax.dynamic_update_slice_in_dim(st[name], v, i * width[name], 0)
                     for name, v in sub.items()}
 
@@ -591,11 +593,33 @@ def _copy_levels(stack_pointer_max: int, k: int) -> int:
     return min(k, 1 << max(int(stack_pointer_max) - 1, 0).bit_length())
 
 
+SCHEDULES = ("adaptive", "fixed")
+
+
+def chunk_lengths(chunk: int, schedule: str):
+    """Node visits per lane of each query chunk: a generator primed with ``next()`` and
+    then sent, after each chunk, whether the check after it compacted the lanes.
+
+    ``fixed``: ``chunk`` every time. ``adaptive``: ``chunk`` first; ``chunk // 2`` (at
+    least 1) after a compaction, since the bucket is then shrinking and a late check
+    leaves finished lanes stepping in it; twice the last length (at most ``2 * chunk``)
+    after a check that did not compact, so that a slow tail (a few lanes with thousands
+    of visits) is checked less often. (A quarter after a compaction: more compactions,
+    each costing more than the steps it saved; docs/psv.md.) A finished lane neither visits nor changes, so the
+    lengths change the time and ``query_chunks``, never a result or another counter.
+    """
+    steps = chunk
+    while True:
+        compacted = yield steps
+        if schedule == "adaptive":
+            steps = max(chunk // 2, 1) if compacted else min(2 * steps, 2 * chunk)
+
+
 def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.ndarray,
               light_h: np.ndarray, *, query: str, depth_test: bool, wedge: str,
               stack_size: int, stackless_cap: str = "paper", edge_tie: str = "inside",
-              chunk: int = 32, lane_order: np.ndarray | None = None,
-              timer: StageTimer | None = None) -> dict:
+              chunk: int = 32, schedule: str = "adaptive",
+              lane_order: np.ndarray | None = None, timer: StageTimer | None = None) -> dict:
     """Locate every point in the tree.
 
     Args:
@@ -611,10 +635,15 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         dict of NumPy arrays [S]: ``shadow`` bool, ``visited``, ``stack_max``,
         ``overflows``, ``switches`` (int32; zeros where not applicable); ``chunks``.
 
-    Lanes run ``chunk`` node visits per kernel call; between calls the unfinished lanes
-    are compacted into the smallest of 4 sizes per octave (``core.capacity.bucket``, at
-    least ``MIN_LANES``) that holds them, when that is smaller than the current size.
+    Lanes run a chunk of node visits per kernel call (lengths from
+    :func:`chunk_lengths`: ``chunk`` each with ``schedule="fixed"``); between calls the
+    unfinished lanes are compacted into the smallest of 4 sizes per octave
+    (``core.capacity.bucket``, at least ``MIN_LANES``) that holds them, when that is
+    smaller than the current size. The schedule changes only the time: a finished lane
+    neither visits nor changes state.
     """
+    if schedule not in SCHEDULES:
+        raise ValueError(f"schedule must be one of {SCHEDULES}; got {schedule!r}")
     timer = timer if timer is not None else StageTimer()
     dt = tree.plane.dtype.type
     s_count = points.shape[0]
@@ -629,7 +658,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         treeargs = device_node_arrays(tree, ROWS[query])
         light = jnp.asarray(light_h.astype(dt))
     kernel = _chunk_kernel(query, depth_test, wedge, stack_size, "lose", stackless_cap,
-                           edge_tie, chunk, bool(light_h[3] == 0))
+                           edge_tie, bool(light_h[3] == 0))
     out = {name: np.zeros(s_count, np.int32) for name in
            ("visited", "stack_max", "overflows", "switches")}
     out["shadow"] = np.zeros(s_count, bool)
@@ -665,12 +694,14 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     fast = None
     if query == "hybrid":
         fast = _chunk_kernel(query, depth_test, wedge, stack_size, "lose", stackless_cap,
-                             edge_tie, chunk, bool(light_h[3] == 0), True)
+                             edge_tie, bool(light_h[3] == 0), True)
     use_fast = fast is not None
     dest = None
+    lengths = chunk_lengths(chunk, schedule)
+    steps = next(lengths)
     while True:
         live = len(lane_id)
-        args = (state, treeargs, *dev, light, tol)
+        args = (state, treeargs, *dev, light, tol, jnp.int32(steps))
         state = timer.run("query", fast if use_fast else kernel, *args)
         n_chunks += 1
         with timer.stage("query_compact"):
@@ -681,6 +712,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
                 use_fast = not np.any(((word < 0) | ((word & SL) != 0)) & ~done)
             keep = np.flatnonzero(~done)
             nb = bucket(len(keep), minimum=MIN_LANES, steps=4)
+            steps = lengths.send(bool(len(keep)) and nb < b)
             if len(keep) and nb >= b:
                 continue
             # Record the finished lanes' results, then move the others to the front.
@@ -748,8 +780,13 @@ _COMMON = {
                          "(insertion rank, as built) or 'auto' (breadth-first when "
                          "reuse_tree keeps the tree, as built otherwise)",
                          allowed=NODE_ORDERS),
-    "chunk": Option(32, "node visits per lane between compactions of unfinished lanes",
-                    kind=int, minimum=1),
+    "chunk": Option(32, "node visits per lane before the first check for finished lanes "
+                    "(and every chunk with chunk_schedule='fixed')", kind=int, minimum=1),
+    "chunk_schedule": Option("adaptive", "lengths of the query chunks between checks for "
+                             "finished lanes: 'adaptive' (chunk first, chunk/2 after a "
+                             "compaction, doubling up to 2 x chunk while none happens) or "
+                             "'fixed' (chunk every time). Results and every counter but "
+                             "query_chunks do not depend on it", allowed=SCHEDULES),
     "lane_tile": Option(1, "query lanes in square pixel tiles of this side (lanes of a "
                         "tile are neighbours in memory and visit similar nodes); 1 = "
                         "row-major samples. Results and counters do not depend on it",
@@ -812,7 +849,8 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
         res = run_query(tree, pts, scale, key, light_h,
                         query=query, depth_test=depth_test, wedge=o["wedge"],
                         stack_size=stack_size, stackless_cap=stackless_cap,
-                        edge_tie=o["edge_tie"], chunk=o["chunk"], lane_order=order,
+                        edge_tie=o["edge_tie"], chunk=o["chunk"],
+                        schedule=o["chunk_schedule"], lane_order=order,
                         timer=timer)
     t_out = time.perf_counter()
     shadow = res["shadow"]

@@ -1,0 +1,40 @@
+"""Shared set-up of the PSV repro scripts: scene specs, frames and the query's inputs."""
+import numpy as np
+
+import shadowlab as sl
+from shadowlab.core.frame import localize, view_samples
+from shadowlab.methods import psv as psvm
+from shadowlab.methods.registry import call_options
+from shadowlab.scene.procedural import default_view
+from shadowlab.scene.view import hard_light
+from shadowlab.structures import top_tree as tt
+
+#: (query, depth test) of each TOP-tree method
+QUERIES = {"psv": ("stack", False), "d_psv": ("stack", True),
+           "d_stackless": ("stackless", True), "d_hybrid": ("hybrid", True)}
+
+
+def frame(spec: str, res: int):
+    """(scene, view, G-buffer) of a spec ``name[:k=v,k=v]`` (integer parameters) at
+    ``res`` x ``res`` pixels, from the scene's default view."""
+    name, _, params = spec.partition(":")
+    kw = {k: int(v) for k, v in (p.split("=") for p in params.split(",") if p)}
+    scene = sl.load_scene(name, **kw)
+    view = default_view(name, scene)
+    return scene, view, sl.render_gbuffer(scene, view.camera.replace(resolution=(res, res)))
+
+
+def query_inputs(scene, view, gbuf):
+    """The float32 TOP tree of the methods' default options, built in the methods' frame
+    ("light"), and the query's inputs: dict with tree, points [S, 3], scale [S], key [S],
+    light_h [4] and the options ``o``."""
+    local = localize(scene, gbuf, view.light, "light")
+    o = call_options("psv", {})
+    samples = view_samples(local.gbuf, local.light)
+    light_h = hard_light(local.light).homogeneous
+    tree, scale, _ = psvm.build_tree(
+        local.scene, local.light, local.gbuf.camera, samples, dtype=np.float32,
+        shadow_eps=o["shadow_eps"], bias=o["bias"], order=o["order"], seed=o["seed"],
+        wedge=o["wedge"], classify_ulps=o["classify_ulps"], face_culling=o["face_culling"])
+    return {"tree": tree, "points": samples.position.astype(np.float32), "scale": scale,
+            "key": tt.light_key(samples.position, light_h), "light_h": light_h, "o": o}
