@@ -150,9 +150,9 @@ def _query_inputs(scene, light, gbuf):
 
 
 def test_limits_of_the_packed_lane_state_are_refused(monkeypatch):
-    """A lane's state word holds a node id in 27 bits and its overflow count in 19: a tree
-    or a lane beyond them is refused with a clear error, never wrapped (limits lowered
-    here to the tree and the query at hand)."""
+    """A lane's state word holds a node id (or, once finished, its visit count) in 27 bits
+    and its overflow count in 19: a tree or a lane beyond them is refused with a clear
+    error, never wrapped (limits lowered here to the tree and the query at hand)."""
     tree, samples, pts, sc, key, light_h = _query_inputs(*_scene("fuzzy")[:3])
     pts, sc, key = pts[:2000], sc[:2000], key[:2000]
     kw = dict(query="stack", depth_test=True, wedge="conservative", stack_size=4)
@@ -165,6 +165,16 @@ def test_limits_of_the_packed_lane_state_are_refused(monkeypatch):
     psvm.run_query(tree, pts, sc, key, light_h, **dict(kw, query="stackless"))  # no count
     monkeypatch.setattr(psvm, "NODE_MASK", tree.plane.shape[0] - 2)
     with pytest.raises(CapacityError, match=f"{tree.plane.shape[0]:,} nodes"):
+        psvm.run_query(tree, pts, sc, key, light_h, **kw)
+    monkeypatch.undo()
+    # A finished lane's visit count replaces the node id in its word: a query that could
+    # run more steps than that field holds is refused before the chunk that would.
+    kw.update(query="stackless", chunk=32, schedule="fixed")
+    steps = 32 * psvm.run_query(tree, pts, sc, key, light_h, **kw)["chunks"]
+    monkeypatch.setattr(psvm, "VISIT_LIMIT", steps)
+    psvm.run_query(tree, pts, sc, key, light_h, **kw)
+    monkeypatch.setattr(psvm, "VISIT_LIMIT", steps - 1)
+    with pytest.raises(CapacityError, match=f"more than {steps - 1:,} node visits"):
         psvm.run_query(tree, pts, sc, key, light_h, **kw)
 
 

@@ -183,7 +183,10 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
     query's first bucket, and the state is donated so the loop updates it in place.
     Every output of the loop body is a separate fusion that XLA/CPU recomputes the whole
     step for, so the state is packed into as few arrays as possible (a node-and-flags
-    word, a stack-pointer, maximum and count word, the stack, the visit count).
+    word, a stack-pointer, maximum and count word, the stack, the visit count (the
+    stack query keeps a finished lane's count in its word instead: ``VISITS_IN_WORD``,
+    with the chunk's first step of the query, ``base``, an argument), the hybrid's
+    return node).
 
     ``fast`` (hybrid only): the stack-mode-only step, for buckets where no lane is in
     stackless mode: a lane that would switch to stackless mode *stalls* instead (no
@@ -196,7 +199,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
     def g(a, i):
         return a.at[i].get(mode="promise_in_bounds")
 
-    def run_tile(state, tree, px, py, pz, scale, key, light, tol, steps):
+    def run_tile(state, tree, px, py, pz, scale, key, light, tol, steps, base):
         if ROWS[query]:
             rows, anc = tree
         else:
@@ -209,7 +212,9 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
         b = px.shape[0]
         lanes = jnp.arange(b, dtype=jnp.int32)
 
-        def step(_, s):
+        in_word = VISITS_IN_WORD[query]
+
+        def step(i, s):
             w = s["word"]
             node0 = w & NODE_MASK
             twice0 = (w & TWICE) != 0
@@ -257,7 +262,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                     inside.astype(jnp.int32) | (wedge_ok.astype(jnp.int32) << 1)
                     | (skip.astype(jnp.int32) << 2), pchild, ichild)
                 inside, wedge_ok, skip = ((flags >> i) & 1 == 1 for i in range(3))
-            visited = s["visited"] + act
+            visited = None if in_word else s["visited"] + act
 
             if query != "stack" and not fast:
                 # -------- stackless transitions (d_stackless, hybrid in stackless mode)
@@ -278,10 +283,12 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             if query == "stackless":
                 shadow_now = act & sl_shadow
                 done_now = act & (sl_shadow | sl_lit)
-                word = _pack(jnp.where(act, sl_node, node0),
-                             jnp.where(act, sl_twice, twice0), sl0,
+                node = jnp.where(act, sl_node, node0)
+                if in_word:             # a finished lane's node field: its visit count
+                    node = jnp.where(done_now, base + i + 1, node)
+                word = _pack(node, jnp.where(act, sl_twice, twice0), sl0,
                              ((w & SHADOW) != 0) | shadow_now, done0 | done_now)
-                return dict(s, word=word, visited=visited)
+                return dict(s, word=word) if in_word else dict(s, word=word, visited=visited)
 
             # -------- stack transitions (psv, d_psv, hybrid in stack mode)
             st_word = s["stats"]
@@ -353,6 +360,8 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 shadow_now = st_mode & st_shadow
                 lit_now = st_mode & st_lit
                 sl_new = sl0
+                if in_word:
+                    node = jnp.where(shadow_now | lit_now, base + i + 1, node)
             word = _pack(node, twice, sl_new, ((w & SHADOW) != 0) | shadow_now,
                          done0 | shadow_now | lit_now)
             if fast:
@@ -362,21 +371,23 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             new_sp = jnp.where(st_mode, sp2, sp)
             extra_count = lost if query == "stack" else switch
             stats = new_sp | (smax << 6) | (((st_word >> 12) + extra_count) << 12)
-            out = dict(s, word=word, stack=stack, stats=stats, visited=visited)
+            out = dict(s, word=word, stack=stack, stats=stats)
+            if not in_word:
+                out["visited"] = visited
             if query == "hybrid" and not fast:
                 out["ret"] = jnp.where(switch, n, s["ret"])
             return out
 
         return jax.lax.fori_loop(0, steps, step, state)
 
-    def run(state, tree, pts, scale, key, light, tol, steps):
+    def run(state, tree, pts, scale, key, light, tol, steps, base):
         # Lanes run in tiles of at most TILE (a loop over tiles, each running all
         # ``steps``), so that a tile's state and stack stay in cache during its steps.
         b = pts.shape[0]
         t = tile_size(b)
         px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
         if t == b:
-            return run_tile(state, tree, px, py, pz, scale, key, light, tol, steps)
+            return run_tile(state, tree, px, py, pz, scale, key, light, tol, steps, base)
 
         def tile(i, st):
             width = {name: (k + 1) * t if name == "stack" else t for name in st}
@@ -385,7 +396,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             cut = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=i * t,
                                     slice_size=t)
             sub = run_tile(sub, tree, cut(px), cut(py), cut(pz), cut(scale), cut(key), light,
-                           tol, steps)
+                           tol, steps, base)
             return {name: jax.lax.dynamic_update_slice_in_dim(st[name], v, i * width[name], 0)
                     for name, v in sub.items()}
 
@@ -403,6 +414,13 @@ MIN_LANES = 1024
 
 
 BARRIER = True
+#: Per query: keep no visit counter array, but a finished lane's count in its state
+#: word's node field. A lane that finishes at step ``i`` of the query has visited
+#: ``i + 1`` nodes (every lane runs from step 0; only the hybrid's stack-only step idles
+#: lanes, so the hybrid cannot). One loop output fewer: the stack query's kernels
+#: 0.88-0.91x; the stackless query's 0.94-0.95x but 1.08x on fuzzy, so it keeps its
+#: array (docs/psv.md, "Visit counts in the state word"; docs/repro/psv_visits_ab.py).
+VISITS_IN_WORD = {"stack": True, "stackless": False, "hybrid": False}
 # Node layout per query: packed [N, 8] rows (stack queries: the row gather costs half of
 # eight 1D gathers there) or one 1D array per field (stackless: 2.6x faster so; measured).
 ROWS = {"stack": True, "hybrid": True, "stackless": False}
@@ -434,6 +452,7 @@ TWICE, SL, SHADOW, DONE = 1 << 27, 1 << 28, 1 << 29, 1 << 30
 STALL = np.int32(np.iinfo(np.int32).min)    # sign bit: hybrid lane waiting for the full step
 MAX_STACK = 63          # the stats word keeps the stack pointer and maximum in 6 bits
 COUNT_MAX = (1 << 19) - 1   # and a lane's overflow / switch count in bits 12-30
+VISIT_LIMIT = NODE_MASK     # visits a finished lane's node field holds (VISITS_IN_WORD)
 
 
 def _pack(node, twice, sl, shadow, done):
@@ -443,11 +462,13 @@ def _pack(node, twice, sl, shadow, done):
 
 
 def unpack_state(s: dict) -> dict:
-    """NumPy counters of a state: done, shadow, visited, stack_pointer, stack_max,
-    overflows, switches."""
+    """NumPy counters of a state: done, shadow, visited (finished lanes only where the
+    state holds no ``visited`` array), stack_pointer, stack_max, overflows, switches."""
     w = np.asarray(s["word"])
-    out = {"done": (w & DONE) != 0, "shadow": (w & SHADOW) != 0,
-           "visited": np.asarray(s["visited"])}
+    done = (w & DONE) != 0
+    out = {"done": done, "shadow": (w & SHADOW) != 0,
+           "visited": np.asarray(s["visited"]) if "visited" in s
+           else np.where(done, w & NODE_MASK, 0)}
     if "stats" in s:
         st = np.asarray(s["stats"])
         out["stack_pointer"] = st & 63
@@ -499,8 +520,9 @@ def device_node_arrays(tree: tt.TopTree, rows: bool) -> tuple:
 def _init_kernel(b: int, query: str):
     """Jitted: the query state of ``b`` lanes, the first ``live`` at node ``root``.
 
-    ``word`` packs node and flags (see :func:`_pack`), ``visited`` counts node visits;
-    the stack queries add ``stats`` (stack pointer, maximum stack use, overflow or
+    ``word`` packs node and flags (see :func:`_pack`; where ``VISITS_IN_WORD``, a
+    finished lane's node field holds its visit count, 0 for the lanes finished here),
+    ``visited`` counts node visits (the others); the stack queries add ``stats`` (stack pointer, maximum stack use, overflow or
     switch count) and ``stack`` [(K + 1) * b], hybrid ``ret`` (the node it switched at).
     The stack buffer is passed in and donated, not cleared: a lane reads only the levels
     below its stack pointer, which it wrote itself, and the scratch row K, whose value
@@ -508,7 +530,9 @@ def _init_kernel(b: int, query: str):
     """
     def init(live, root, stack):
         done = jnp.arange(b, dtype=jnp.int32) >= live
-        s = {"word": root | (done.astype(jnp.int32) << 30), "visited": jnp.zeros(b, jnp.int32)}
+        s = {"word": jnp.where(done, 0, root) | (done.astype(jnp.int32) << 30)}
+        if not VISITS_IN_WORD[query]:
+            s["visited"] = jnp.zeros(b, jnp.int32)
         if query != "stackless":
             s.update(stack=stack, stats=jnp.zeros(b, jnp.int32))
         if query == "hybrid":
@@ -698,11 +722,15 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     use_fast = fast is not None
     dest = None
     lengths = chunk_lengths(chunk, schedule)
-    steps = next(lengths)
+    steps, base = next(lengths), 0
     while True:
         live = len(lane_id)
-        args = (state, treeargs, *dev, light, tol, jnp.int32(steps))
+        if base + steps > VISIT_LIMIT:
+            raise CapacityError(f"PSV query: more than {VISIT_LIMIT:,} node visits per sample "
+                                "(a finished lane keeps its visit count in its node field)")
+        args = (state, treeargs, *dev, light, tol, jnp.int32(steps), jnp.int32(base))
         state = timer.run("query", fast if use_fast else kernel, *args)
+        base += steps
         n_chunks += 1
         with timer.stage("query_compact"):
             word = np.asarray(state["word"])[:live]
