@@ -169,13 +169,14 @@ def test_limits_of_the_packed_lane_state_are_refused(monkeypatch):
     monkeypatch.undo()
     # A finished lane's visit count replaces the node id in its word: a query that could
     # run more steps than that field holds is refused before the chunk that would.
-    kw.update(query="stackless", chunk=32, schedule="fixed")
+    kw.update(chunk=32, schedule="fixed")
     steps = 32 * psvm.run_query(tree, pts, sc, key, light_h, **kw)["chunks"]
     monkeypatch.setattr(psvm, "VISIT_LIMIT", steps)
     psvm.run_query(tree, pts, sc, key, light_h, **kw)
     monkeypatch.setattr(psvm, "VISIT_LIMIT", steps - 1)
     with pytest.raises(CapacityError, match=f"more than {steps - 1:,} node visits"):
         psvm.run_query(tree, pts, sc, key, light_h, **kw)
+    psvm.run_query(tree, pts, sc, key, light_h, **dict(kw, query="stackless"))  # an array
 
 
 def test_copy_levels_cover_every_stack_in_use():

@@ -214,7 +214,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
 
         in_word = VISITS_IN_WORD[query]
 
-        def step(i, s):
+        def step(step_no, s):
             w = s["word"]
             node0 = w & NODE_MASK
             twice0 = (w & TWICE) != 0
@@ -285,7 +285,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 done_now = act & (sl_shadow | sl_lit)
                 node = jnp.where(act, sl_node, node0)
                 if in_word:             # a finished lane's node field: its visit count
-                    node = jnp.where(done_now, base + i + 1, node)
+                    node = jnp.where(done_now, base + step_no + 1, node)
                 word = _pack(node, jnp.where(act, sl_twice, twice0), sl0,
                              ((w & SHADOW) != 0) | shadow_now, done0 | done_now)
                 return dict(s, word=word) if in_word else dict(s, word=word, visited=visited)
@@ -361,7 +361,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 lit_now = st_mode & st_lit
                 sl_new = sl0
                 if in_word:
-                    node = jnp.where(shadow_now | lit_now, base + i + 1, node)
+                    node = jnp.where(shadow_now | lit_now, base + step_no + 1, node)
             word = _pack(node, twice, sl_new, ((w & SHADOW) != 0) | shadow_now,
                          done0 | shadow_now | lit_now)
             if fast:
@@ -522,8 +522,9 @@ def _init_kernel(b: int, query: str):
 
     ``word`` packs node and flags (see :func:`_pack`; where ``VISITS_IN_WORD``, a
     finished lane's node field holds its visit count, 0 for the lanes finished here),
-    ``visited`` counts node visits (the others); the stack queries add ``stats`` (stack pointer, maximum stack use, overflow or
-    switch count) and ``stack`` [(K + 1) * b], hybrid ``ret`` (the node it switched at).
+    ``visited`` counts node visits (the other queries); the stack queries add ``stats``
+    (stack pointer, maximum stack use, overflow or switch count) and ``stack``
+    [(K + 1) * b], hybrid ``ret`` (the node it switched at).
     The stack buffer is passed in and donated, not cleared: a lane reads only the levels
     below its stack pointer, which it wrote itself, and the scratch row K, whose value
     it discards.
@@ -629,8 +630,9 @@ def chunk_lengths(chunk: int, schedule: str):
     leaves finished lanes stepping in it; twice the last length (at most ``2 * chunk``)
     after a check that did not compact, so that a slow tail (a few lanes with thousands
     of visits) is checked less often. (A quarter after a compaction: more compactions,
-    each costing more than the steps it saved; docs/psv.md.) A finished lane neither visits nor changes, so the
-    lengths change the time and ``query_chunks``, never a result or another counter.
+    each costing more than the steps it saved; docs/psv.md.) A finished lane neither
+    visits nor changes, so the lengths change the time and ``query_chunks``, never a
+    result or another counter.
     """
     steps = chunk
     while True:
@@ -725,7 +727,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     steps, base = next(lengths), 0
     while True:
         live = len(lane_id)
-        if base + steps > VISIT_LIMIT:
+        if VISITS_IN_WORD[query] and base + steps > VISIT_LIMIT:
             raise CapacityError(f"PSV query: more than {VISIT_LIMIT:,} node visits per sample "
                                 "(a finished lane keeps its visit count in its node field)")
         args = (state, treeargs, *dev, light, tol, jnp.int32(steps), jnp.int32(base))
