@@ -238,3 +238,21 @@ def test_setup_rounding_is_the_same_at_every_size(precision):
                                            1.37, 1.81)
                     np.testing.assert_array_equal(np.asarray(g)[:n], wg)
                     np.testing.assert_array_equal(np.asarray(tol)[:n], wtol)
+
+
+def test_bias_scale_against_a_plain_loop():
+    """The receiver bias scale n . (L.xyz - L.w p) - eps L.w per sample (point and
+    directional lights), against a per-sample loop in float64; "cap" mode is all ones."""
+    from shadowlab.core.frame import Samples, bias_scale
+
+    rng = np.random.default_rng(5)
+    pos = rng.normal(size=(300, 3)) * 20 + [1e4, 0.0, -1e4]
+    nrm = rng.normal(size=(300, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    samples = Samples(np.arange(300), pos, nrm, (15, 20))
+    for light_h in (np.array([1e4 + 5.0, 80.0, -1e4 + 3.0, 1.0]), np.array([0.2, 0.9, 0.1, 0.0])):
+        got = bias_scale(samples, light_h, 1e-3, "receiver")
+        want = [sum(n[i] * (light_h[i] - light_h[3] * p[i]) for i in range(3)) - 1e-3 * light_h[3]
+                for p, n in zip(pos, nrm)]
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
+    assert np.array_equal(bias_scale(samples, light_h, 1e-3, "cap"), np.ones(300))

@@ -56,6 +56,25 @@ def _trees(name, params, precision, order, wedge="conservative", ulps=64):
     return scene, view.light, out
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_light_key_against_a_plain_loop(dtype):
+    """Point light: the distance to the light, bit for bit the norm of the difference
+    (the same squares summed in the same order); directional: -dot(towards light, p)."""
+    rng = np.random.default_rng(3)
+    pts = (rng.normal(size=(200, 3)) * 50 + 1e3).astype(dtype)
+    for light_h in (np.array([3.0, -2.0, 40.0, 1.0]), np.array([0.3, 0.9, 0.3, 0.0])):
+        got = tt.light_key(pts, light_h)
+        assert got.dtype == np.float64
+        if light_h[3]:
+            np.testing.assert_array_equal(got, np.linalg.norm(pts - light_h[:3], axis=-1))
+        for p, k in zip(pts.astype(np.float64), got):
+            if light_h[3]:
+                d = [p[i] - light_h[i] for i in range(3)]
+                assert k == np.sqrt((d[0] * d[0] + d[1] * d[1]) + d[2] * d[2])
+            else:
+                assert k == pytest.approx(-sum(p[i] * light_h[i] for i in range(3)), rel=1e-12)
+
+
 @pytest.mark.parametrize("name,params,order,wedge,ulps", [
     ("soup", {"count": 60}, "random", "conservative", 64),
     ("sphere_grid", {"n": 2, "triangles_per_sphere": 128}, "mesh", "vertex", 64),
