@@ -187,18 +187,21 @@ def test_copy_levels_cover_every_stack_in_use():
             assert m == k or m & (m - 1) == 0, (k, stack_pointer_max)
 
 
-@pytest.mark.parametrize("query,depth,stack_size,chunk,tile", [
-    ("stack", False, 3, 1, None), ("stack", True, 32, 2, 1024), ("hybrid", True, 2, 1, 1024)])
+@pytest.mark.parametrize("query,depth,stack_size,chunk,tile,in_place", [
+    ("stack", False, 3, 1, None, True), ("stack", True, 32, 2, 1024, True),
+    ("stack", True, 32, 2, 1024, False), ("hybrid", True, 2, 1, 1024, True)])
 def test_compactions_and_spare_stacks_keep_every_result(monkeypatch, request, query, depth,
-                                                        stack_size, chunk, tile):
+                                                        stack_size, chunk, tile, in_place):
     """A compaction moves only the stack levels in use, into the tree's spare stack; a
     query on a reused tree starts from the stacks the previous one left (never
     cleared). With chunks of one or two steps (a compaction whenever a bucket shrinks),
     spares poisoned with random node ids, every lane's result and counters equal one
     long chunk's (no compaction) and, on a subset, the plain loop's. ``tile``: lanes run
-    in compute tiles of that many lanes (each on a copy of its state and stack)."""
+    in compute tiles of that many lanes (each on a copy of its state; of its stack too
+    unless ``in_place``, ``psv.STACK_IN_PLACE``)."""
     import jax.numpy as jnp
 
+    monkeypatch.setattr(psvm, "STACK_IN_PLACE", in_place)
     if tile:
         # Both kernels trace the tile size into their code (the compaction its stack
         # layout): kernels of the default tile must not run here, nor these after.

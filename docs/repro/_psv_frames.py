@@ -38,3 +38,23 @@ def query_inputs(scene, view, gbuf):
         wedge=o["wedge"], classify_ulps=o["classify_ulps"], face_culling=o["face_culling"])
     return {"tree": tree, "points": samples.position.astype(np.float32), "scale": scale,
             "key": tt.light_key(samples.position, light_h), "light_h": light_h, "o": o}
+
+
+def keep_kernels_per_flag(flag):
+    """Make ``psv``'s cached kernel builders keep one kernel per value of ``flag()`` (a
+    module setting read at trace time), so that an A/B alternating the setting compiles
+    each variant once."""
+    kernels = {}
+
+    def keep(cached):
+        def get(*args):
+            key = (cached, flag(), args)
+            if key not in kernels:
+                cached.cache_clear()
+                kernels[key] = cached(*args)
+            return kernels[key]
+        return get
+
+    psvm._chunk_kernel = keep(psvm._chunk_kernel)
+    psvm._init_kernel = keep(psvm._init_kernel)
+    psvm._compact_kernel = keep(psvm._compact_kernel)

@@ -10,7 +10,7 @@ import json, os, statistics, sys
 
 import numpy as np
 
-from _psv_frames import QUERIES, frame, query_inputs
+from _psv_frames import QUERIES, frame, keep_kernels_per_flag, query_inputs
 from shadowlab.core.timing import StageTimer
 from shadowlab.methods import psv as psvm
 from shadowlab.methods.registry import call_options
@@ -18,22 +18,8 @@ from shadowlab.structures import top_tree as tt
 
 res, pairs, out, methods = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], sys.argv[4]
 # Both variants' kernels are traced once and kept: the flag is read at trace time.
-kernels = {}
 default = dict(psvm.VISITS_IN_WORD)
-
-
-def keep_per_flag(cached):
-    def get(*args):
-        key = (cached, tuple(sorted(psvm.VISITS_IN_WORD.items())), args)
-        if key not in kernels:
-            cached.cache_clear()
-            kernels[key] = cached(*args)
-        return kernels[key]
-    return get
-
-
-psvm._chunk_kernel = keep_per_flag(psvm._chunk_kernel)
-psvm._init_kernel = keep_per_flag(psvm._init_kernel)
+keep_kernels_per_flag(lambda: tuple(sorted(psvm.VISITS_IN_WORD.items())))
 if "d_hybrid" in methods.split(","):
     sys.exit("d_hybrid cannot keep its visit counts in its state words (its stack-only step "
              "idles lanes); choose among psv, d_psv, d_stackless")

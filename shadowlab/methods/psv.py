@@ -180,7 +180,8 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
     [N, 4] array and clamped gathers cost 1.5-2x more), the per-lane stack is one flat
     array, tile-major ([tiles, K + 1, tile], row K scratch; entries of one level of a
     tile are contiguous) in the first (K + 1) * lanes entries of a buffer sized for the
-    query's first bucket, and the state is donated so the loop updates it in place.
+    query's first bucket, which each tile addresses in place (``STACK_IN_PLACE``), and
+    the state is donated so the loop updates it in place.
     Every output of the loop body is a separate fusion that XLA/CPU recomputes the whole
     step for, so the state is packed into as few arrays as possible (a node-and-flags
     word, a stack-pointer, maximum and count word, the stack, the visit count (the
@@ -199,7 +200,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
     def g(a, i):
         return a.at[i].get(mode="promise_in_bounds")
 
-    def run_tile(state, tree, px, py, pz, scale, key, light, tol, steps, base):
+    def run_tile(state, tree, px, py, pz, scale, key, light, tol, steps, base, stack_at=0):
         if ROWS[query]:
             rows, anc = tree
         else:
@@ -210,7 +211,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             dx, dy, dz = px - light[0], py - light[1], pz - light[2]
             dist = jnp.sqrt(dx * dx + dy * dy + dz * dz)
         b = px.shape[0]
-        lanes = jnp.arange(b, dtype=jnp.int32)
+        lanes = jnp.arange(b, dtype=jnp.int32) + stack_at
 
         in_word = VISITS_IN_WORD[query]
 
@@ -390,14 +391,20 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             return run_tile(state, tree, px, py, pz, scale, key, light, tol, steps, base)
 
         def tile(i, st):
+            # A tile's lanes, inputs and state are sliced out and written back; its stack
+            # levels are addressed in place at the tile's offset (STACK_IN_PLACE), as
+            # copying them out and back cost a quarter of a 32-step chunk at 1M lanes.
+            in_place = {"stack"} & set(st) if STACK_IN_PLACE else set()
             width = {name: (k + 1) * t if name == "stack" else t for name in st}
-            sub = {name: jax.lax.dynamic_slice_in_dim(v, i * width[name], width[name])
+            sub = {name: v if name in in_place else
+                   jax.lax.dynamic_slice_in_dim(v, i * width[name], width[name])
                    for name, v in st.items()}
             cut = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=i * t,
                                     slice_size=t)
             sub = run_tile(sub, tree, cut(px), cut(py), cut(pz), cut(scale), cut(key), light,
-                           tol, steps, base)
-            return {name: jax.lax.dynamic_update_slice_in_dim(st[name], v, i * width[name], 0)
+                           tol, steps, base, i * width["stack"] if in_place else 0)
+            return {name: v if name in in_place else
+                    jax.lax.dynamic_update_slice_in_dim(st[name], v, i * width[name], 0)
                     for name, v in sub.items()}
 
         return jax.lax.fori_loop(0, b // t, tile, state)
@@ -406,6 +413,12 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
 
 
 TILE = 32768
+#: The stack query's tiles address their stack levels in the whole buffer (at the tile's
+#: offset) instead of copying a tile's levels out and back per chunk: the chunk kernels
+#: 0.85-0.88x for psv / d_psv on sphere_grid, 0.95-0.98x for d_hybrid; the same results
+#: (docs/psv.md, "The stack stays in place across tiles";
+#: docs/repro/psv_stack_in_place_ab.py).
+STACK_IN_PLACE = True
 #: Smallest lane bucket of a query (see :func:`run_query`). Every bucket is a compiled
 #: chunk and compaction kernel; below 1024 lanes a chunk costs far less than compiling
 #: another size (the 256-1024 tail had 8 more sizes per query configuration: 32 % more
@@ -461,9 +474,11 @@ def _pack(node, twice, sl, shadow, done):
             | (shadow.astype(jnp.int32) << 29) | (done.astype(jnp.int32) << 30))
 
 
-def unpack_state(s: dict) -> dict:
-    """NumPy counters of a state: done, shadow, visited (finished lanes only where the
-    state holds no ``visited`` array), stack_pointer, stack_max, overflows, switches."""
+def unpack_state(s: dict, lane_count: str = "overflows") -> dict:
+    """NumPy counters of a state (or of some of its lanes): done, shadow, visited
+    (finished lanes only where the state holds no ``visited`` array), stack_pointer,
+    stack_max and the stats word's per-lane count as ``lane_count`` ("overflows" for the
+    stack query, "switches" for the hybrid)."""
     w = np.asarray(s["word"])
     done = (w & DONE) != 0
     out = {"done": done, "shadow": (w & SHADOW) != 0,
@@ -473,7 +488,7 @@ def unpack_state(s: dict) -> dict:
         st = np.asarray(s["stats"])
         out["stack_pointer"] = st & 63
         out["stack_max"] = (st >> 6) & 63
-        out["overflows" if "ret" not in s else "switches"] = st >> 12
+        out[lane_count] = st >> 12
     return out
 
 
@@ -649,8 +664,9 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     """Locate every point in the tree.
 
     Args:
-        points: [S, 3] (tree dtype); scale: [S] cap-bias scale; key: [S] depth keys
-            (``top_tree.light_key``); light_h: float64 [4].
+        points: [S, 3]; scale: [S] cap-bias scale; key: [S] depth keys
+            (``top_tree.light_key``), any float dtypes (rounded once to the tree's);
+            light_h: float64 [4].
         query: "stack" (PSV / D-PSV; a push onto a full stack is lost and counted),
             "stackless" (D-Stackless), "hybrid" (short stack, stackless when full).
         lane_order: int [S] permutation of the points: lane i locates point
@@ -685,9 +701,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         light = jnp.asarray(light_h.astype(dt))
     kernel = _chunk_kernel(query, depth_test, wedge, stack_size, "lose", stackless_cap,
                            edge_tie, bool(light_h[3] == 0))
-    out = {name: np.zeros(s_count, np.int32) for name in
-           ("visited", "stack_max", "overflows", "switches")}
-    out["shadow"] = np.zeros(s_count, bool)
+    out = {name: np.zeros(s_count, np.int32) for name in ("stack_max", "overflows", "switches")}
     n_chunks = 0
     with timer.stage("query_setup"):
         b = bucket(max(s_count, 1), minimum=MIN_LANES, steps=4)
@@ -705,8 +719,8 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
                 raise ValueError(f"lane_order must be a permutation of the {s_count} "
                                  f"points; got shape {lane_id.shape}")
             src = (points[lane_id], scale[lane_id], key[lane_id])
-        cur = [pad(src[0].astype(dt), b), pad(src[1].astype(dt), b),
-               pad(src[2].astype(dt), b, np.inf)]
+        cur = [pad(src[0], b, dtype=dt), pad(src[1], b, dtype=dt),
+               pad(src[2], b, np.inf, dtype=dt)]
         dev = [jnp.asarray(a) for a in cur]
         del cur
         live0 = s_count if tree.root >= 0 else 0
@@ -723,6 +737,8 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
                              edge_tie, bool(light_h[3] == 0), True)
     use_fast = fast is not None
     dest = None
+    raw_fields = [name for name in state if name not in ("stack", "ret")]
+    finished = {name: [] for name in ("ids", *raw_fields)}
     lengths = chunk_lengths(chunk, schedule)
     steps, base = next(lengths), 0
     while True:
@@ -745,21 +761,23 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
             steps = lengths.send(bool(len(keep)) and nb < b)
             if len(keep) and nb >= b:
                 continue
-            # Record the finished lanes' results, then move the others to the front.
-            host = {k2: np.asarray(v) for k2, v in state.items() if k2 != "stack"}
-            counts = unpack_state(host)
+            # Keep the finished lanes' raw words (decoded once after the loop), then
+            # move the others to the front.
             fin = np.flatnonzero(done)
-            ids = lane_id[fin]
-            for name in ("visited", "shadow", "stack_max", "overflows", "switches"):
-                if name in counts:
-                    out[name][ids] = counts[name][fin]
+            finished["ids"].append(lane_id.take(fin))
+            for name in raw_fields:
+                v = word if name == "word" else np.asarray(state[name])[:live]
+                finished[name].append(v.take(fin))
             if len(keep) == 0:
                 break
-            lane_id = lane_id[keep]
-            keep_d = jnp.asarray(pad(keep.astype(np.int32), nb))
+            lane_id = lane_id.take(keep)
+            keep_pad = np.zeros(nb, np.int32)
+            keep_pad[:len(keep)] = keep
+            keep_d = jnp.asarray(keep_pad)
             levels = 0
             if has_stack:
-                levels = _copy_levels(counts["stack_pointer"][keep].max(), k)
+                sp = np.asarray(state["stats"])[:live] & 63
+                levels = _copy_levels(sp.take(keep).max(), k)
                 if dest is None:
                     dest = _take_stack(spare, state["stack"].shape[0])
         # On the device: no host copy of the stack, no transfer back.
@@ -771,6 +789,15 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         b = nb
     _give_stack(spare, state.get("stack"))
     _give_stack(spare, dest)
+    with timer.stage("query_compact"):
+        # The finished lanes' words in sample order (every sample finished exactly once),
+        # decoded in one pass.
+        ids = np.concatenate(finished.pop("ids"))
+        raw = {}
+        for name, parts in finished.items():
+            raw[name] = np.empty(s_count, np.int32)
+            raw[name][ids] = np.concatenate(parts)
+        out.update(unpack_state(raw, "switches" if query == "hybrid" else "overflows"))
     if has_stack and s_count and out["visited"].max() > COUNT_MAX:
         # a lane loses or switches at most once per visit, so below this its count is exact
         raise CapacityError(f"PSV query: a sample visited {int(out['visited'].max()):,} nodes; "
@@ -874,9 +901,8 @@ def _run(name, scene, gbuf, light, *, query, depth_test, stack_size=0,
                 _TREES[scene] = (key, (tree, culled))
         with timer.stage("query_setup"):
             key = tt.light_key(samples.position, light_h)
-            pts = samples.position.astype(dtype)
             order = samples.tile_order(o["lane_tile"]) if o["lane_tile"] > 1 else None
-        res = run_query(tree, pts, scale, key, light_h,
+        res = run_query(tree, samples.position, scale, key, light_h,
                         query=query, depth_test=depth_test, wedge=o["wedge"],
                         stack_size=stack_size, stackless_cap=stackless_cap,
                         edge_tie=o["edge_tie"], chunk=o["chunk"],
