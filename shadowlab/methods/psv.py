@@ -793,11 +793,16 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         # The finished lanes' words in sample order (every sample finished exactly once),
         # decoded in one pass.
         ids = np.concatenate(finished.pop("ids"))
+        if len(ids) != s_count:             # the loop ends only when every lane finished
+            raise RuntimeError(f"PSV query: {len(ids)} of {s_count} lanes recorded")
         raw = {}
         for name, parts in finished.items():
             raw[name] = np.empty(s_count, np.int32)
             raw[name][ids] = np.concatenate(parts)
-        out.update(unpack_state(raw, "switches" if query == "hybrid" else "overflows"))
+        counts = unpack_state(raw, "switches" if query == "hybrid" else "overflows")
+        out.update({name: counts[name] for name in
+                    ("shadow", "visited", "stack_max", "overflows", "switches")
+                    if name in counts})
     if has_stack and s_count and out["visited"].max() > COUNT_MAX:
         # a lane loses or switches at most once per visit, so below this its count is exact
         raise CapacityError(f"PSV query: a sample visited {int(out['visited'].max()):,} nodes; "
