@@ -58,3 +58,52 @@ def keep_kernels_per_flag(flag):
     psvm._chunk_kernel = keep(psvm._chunk_kernel)
     psvm._init_kernel = keep(psvm._init_kernel)
     psvm._compact_kernel = keep(psvm._compact_kernel)
+
+
+def query_flag_ab(specs, res: int, methods, pairs: int, set_flag, labels: tuple) -> list:
+    """A/B of a query setting over the breadth-first tree of each scene spec: per scene
+    and method, both settings once (compile, and a check that every output is the same),
+    then ``pairs`` alternating pairs timing the query's chunk kernels (stage "query").
+
+    ``set_flag(query, on)`` sets the module setting; ``labels``: names of the off and on
+    times in the rows ("<label>_ms"). Returns the rows (also printed)."""
+    import os
+    import statistics
+
+    from shadowlab.core.timing import StageTimer
+
+    rows = []
+    for spec in specs:
+        scene, view, gbuf = frame(spec, res)
+        q = query_inputs(scene, view, gbuf)
+        q["tree"] = q["tree"].renumbered(tt.breadth_first_volumes(q["tree"]))
+        for m in methods:
+            query, depth = QUERIES[m]
+            stack = call_options(m, {}).get("stack_size", 0)
+
+            def run(on):
+                set_flag(query, on)
+                timer = StageTimer()
+                got = psvm.run_query(q["tree"], q["points"], q["scale"], q["key"],
+                                     q["light_h"], query=query, depth_test=depth,
+                                     wedge=q["o"]["wedge"], stack_size=stack, timer=timer)
+                return got, timer.times["query"]
+
+            first = {on: run(on)[0] for on in (False, True)}
+            same = all(np.array_equal(first[False][k], first[True][k]) for k in first[False])
+            times = {False: [], True: []}
+            load = os.getloadavg()[0]
+            for _ in range(pairs):
+                for on in (False, True):
+                    times[on].append(run(on)[1])
+            med = {on: statistics.median(t) for on, t in times.items()}
+            row = {"scene": spec, "triangles": scene.num_triangles, "method": m,
+                   "load_start": load, "load_end": os.getloadavg()[0], "identical": same,
+                   f"{labels[0]}_ms": [round(1e3 * x, 1) for x in times[False]],
+                   f"{labels[1]}_ms": [round(1e3 * x, 1) for x in times[True]],
+                   "ratio_of_medians": med[True] / med[False]}
+            rows.append(row)
+            print(f"{spec} {m}: {labels[0]} {1e3 * med[False]:.0f} ms, {labels[1]} "
+                  f"{1e3 * med[True]:.0f} ms (x{row['ratio_of_medians']:.3f}), identical {same}",
+                  flush=True)
+    return rows
