@@ -105,6 +105,7 @@ def light_key(points: np.ndarray, light_h: np.ndarray) -> np.ndarray:
     if light_h[3] != 0:
         # bit for bit norms3(points - light_h[:3]), on coordinate columns (no [..., 3]
         # temporary)
+        points = np.asarray(points, np.float64)     # float64 under NumPy 1.x promotion too
         d = [points[..., i] - light_h[i] for i in range(3)]
         return np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
     return -(points @ light_h[:3])
