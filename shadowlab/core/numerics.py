@@ -153,16 +153,23 @@ def column_bounds(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def norms3(x: np.ndarray, keepdims: bool = False) -> np.ndarray:
+def norms3(x: np.ndarray, keepdims: bool = False, origin=None) -> np.ndarray:
     """Euclidean norms [...] (or [..., 1] with ``keepdims``) of NumPy vectors x [..., 3],
     bit for bit ``np.linalg.norm(x, axis=-1)``: the same squares summed in the same order
     (``(x0^2 + x1^2) + x2^2``; NumPy reduces a length-3 axis sequentially), about four
-    times faster on [N, 3] arrays (no strided reduction)."""
+    times faster on [N, 3] arrays (no strided reduction).
+
+    ``origin`` [3]: the norms of ``x - origin`` in float64 instead, bit for bit
+    ``norms3(x - origin)`` with a float64 origin, on coordinate columns."""
     x = np.asarray(x)
     if x.shape[-1:] != (3,):
         raise ValueError(f"norms3: the last axis must have length 3, got shape {x.shape}")
     if not np.issubdtype(x.dtype, np.inexact):
         x = x.astype(np.float64)
-    a, b, c = x[..., 0], x[..., 1], x[..., 2]
+    if origin is None:
+        a, b, c = x[..., 0], x[..., 1], x[..., 2]
+    else:       # bit for bit norms3(x - origin), without the [..., 3] temporary
+        x = x.astype(np.float64, copy=False)
+        a, b, c = (x[..., i] - origin[i] for i in range(3))
     out = np.sqrt(a * a + b * b + c * c)
     return out[..., None] if keepdims else out

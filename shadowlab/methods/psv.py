@@ -776,8 +776,8 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
             keep_d = jnp.asarray(keep_pad)
             levels = 0
             if has_stack:
-                sp = np.asarray(state["stats"])[:live] & 63
-                levels = _copy_levels(sp.take(keep).max(), k)
+                kept_stats = np.asarray(state["stats"])[:live].take(keep)
+                levels = _copy_levels((kept_stats & 63).max(), k)
                 if dest is None:
                     dest = _take_stack(spare, state["stack"].shape[0])
         # On the device: no host copy of the stack, no transfer back.

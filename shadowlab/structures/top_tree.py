@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.capacity import bucket, pad
-from ..core.numerics import materialize, opaque_multiplier, ordered_dot
+from ..core.numerics import materialize, norms3, opaque_multiplier, ordered_dot
 
 STATUS_UNUSED, STATUS_MERGED, STATUS_DROPPED = 0, 1, 2
 ORDERS = ("random", "mesh", "distance")
@@ -103,11 +103,7 @@ def light_key(points: np.ndarray, light_h: np.ndarray) -> np.ndarray:
     """float64 [...]: the depth-test key of points [..., 3]: distance to a point light,
     or ``-dot(towards_light, p)`` for a directional light (smaller = nearer the light)."""
     if light_h[3] != 0:
-        # bit for bit norms3(points - light_h[:3]), on coordinate columns (no [..., 3]
-        # temporary)
-        points = np.asarray(points, np.float64)     # float64 under NumPy 1.x promotion too
-        d = [points[..., i] - light_h[i] for i in range(3)]
-        return np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        return norms3(points, origin=light_h[:3])
     return -(points @ light_h[:3])
 
 
