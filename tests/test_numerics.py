@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from shadowlab.core.numerics import (column_bounds, cross3, norms3, opaque, opaque_mul, opaque_multiplier,
+                                     pack_interval, unpack_interval, unpack_interval_np,
                                      opaque_zero, ordered_dot, ordered_sum)
 from shadowlab.core.frame import precision_mode
 
@@ -176,3 +177,42 @@ def test_column_bounds_equal_numpy_min_max(dtype):
         column_bounds(np.zeros((0, 3), dtype))
     with pytest.raises(ValueError):
         column_bounds(np.zeros(3, dtype))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_packed_intervals_hold_the_exact_ones(dtype):
+    """pack_interval rounds each end away from zero to half the width (bfloat16 / float32)
+    and never below the smallest normal; the JAX and NumPy unpacking read the same values;
+    an empty interval packs exactly; an interval not around 0 is refused."""
+    rng = np.random.default_rng(11)
+    n = 100_000
+    hi = (np.abs(rng.normal(size=n)) * 10.0 ** rng.uniform(-46, 40, n)).astype(dtype)
+    lo = (-np.abs(rng.normal(size=n)) * 10.0 ** rng.uniform(-46, 40, n)).astype(dtype)
+    hi[:5] = [-np.inf, 0.0, np.finfo(dtype).max, np.inf, 1.0]
+    lo[:5] = [np.inf, -0.0, -np.finfo(dtype).max, 0.0, -1.0]
+    words = pack_interval(lo, hi, dtype)
+    assert words.dtype == dtype
+    got_lo, got_hi = unpack_interval_np(words)
+    assert got_lo.dtype == dtype and got_hi.dtype == dtype
+    assert np.all(got_lo <= lo) and np.all(got_hi >= hi)            # outward
+    half = np.float32 if dtype == np.float64 else None
+    tiny = np.finfo(np.float32).tiny
+    for end in (got_lo, got_hi):
+        assert not np.any((end != 0) & (np.abs(end) < tiny))         # no subnormal ends
+        if half is not None:                                          # float32 values
+            np.testing.assert_array_equal(end.astype(np.float32).astype(dtype), end)
+        else:                                                         # bfloat16 values
+            assert not np.any(end.view(np.uint32) & np.uint32(0xFFFF))
+    normal = np.isfinite(hi) & (hi > 1e-30) & (hi < 1e30)
+    widen = got_hi[normal] / hi[normal]
+    assert widen.max() <= 1 + (2.0 ** -7 if dtype == np.float32 else 2.0 ** -23)
+    np.testing.assert_array_equal(got_hi[:5], [-np.inf, 0.0, np.inf, np.inf, 1.0])
+    np.testing.assert_array_equal(got_lo[:5], [np.inf, 0.0, -np.inf, 0.0, -1.0])
+    with jax.enable_x64(dtype == np.float64):
+        j_lo, j_hi = unpack_interval(jnp.asarray(words))
+        j_lo, j_hi = np.asarray(j_lo * 1), np.asarray(j_hi * 1)     # through device math
+    np.testing.assert_array_equal(j_lo, got_lo)
+    np.testing.assert_array_equal(j_hi, got_hi)
+    for bad in ((1.0, 2.0), (-1.0, -0.5), (np.nan, 1.0)):
+        with pytest.raises(ValueError, match="lo <= 0 <= hi"):
+            pack_interval(np.array([bad[0]]), np.array([bad[1]]), dtype)

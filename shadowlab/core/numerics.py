@@ -173,3 +173,90 @@ def norms3(x: np.ndarray, keepdims: bool = False, origin=None) -> np.ndarray:
         a, b, c = (x[..., i] - origin[i] for i in range(3))
     out = np.sqrt(a * a + b * b + c * c)
     return out[..., None] if keepdims else out
+
+
+# --------------------------------------------------------------------------- packed intervals
+#
+# An interval [lo, hi] with lo <= 0 <= hi stored in one word of a float dtype's width:
+# each end rounded away from zero (outward, so the stored interval holds the exact one)
+# to a float of half that width, hi in the upper half. float32 words hold two bfloat16
+# values (a float32's upper 16 bits: its exponent range, 8 significant bits, so each end
+# moves out by less than 2^-7 of itself); float64 words hold two float32 values. An
+# empty interval (lo = +inf, hi = -inf) packs exactly. A nonzero end below the half
+# float's smallest normal is stored as that normal (XLA/CPU flushes subnormal inputs to
+# zero, which would move the end inwards).
+
+_HALVES = {np.dtype(np.float32): (np.uint32, np.uint16, 16),
+           np.dtype(np.float64): (np.uint64, np.uint32, 32)}
+
+
+def _round_half_away(x: np.ndarray, dtype) -> np.ndarray:
+    """The upper-half bits (uint16 / uint32) of x rounded away from zero to a float of
+    half ``dtype``'s width; infinities stay infinite, a finite x beyond that float's
+    range becomes infinite (still outward)."""
+    word, half, shift = _HALVES[np.dtype(dtype)]
+    if half == np.uint16:          # bfloat16: a float32's upper half, magnitude up
+        b = np.asarray(x, np.float32).view(np.uint32)
+        low = b & np.uint32(0xFFFF)
+        finite = (b & np.uint32(0x7F800000)) != np.uint32(0x7F800000)
+        up = (low != 0) & finite
+        h = (b >> np.uint32(16)) + up.astype(np.uint32)
+        # a subnormal half becomes the smallest normal (XLA/CPU flushes subnormals)
+        sub = ((h & np.uint32(0x7F80)) == 0) & ((h & np.uint32(0x7F)) != 0)
+        h = np.where(sub, (h & np.uint32(0x8000)) | np.uint32(0x0080), h)
+        return h.astype(np.uint16)
+    x = np.asarray(x, np.float64)
+    with np.errstate(over="ignore"):
+        y = x.astype(np.float32)
+    short = np.isfinite(x) & (np.abs(y.astype(np.float64)) < np.abs(x))
+    y = np.where(short, np.nextafter(y, np.copysign(np.float32(np.inf), y)), y)
+    tiny = np.finfo(np.float32).tiny        # XLA/CPU flushes subnormals: round them up
+    y = np.where((y != 0) & (np.abs(y) < tiny), np.copysign(tiny, y), y)
+    return y.astype(np.float32).view(np.uint32)
+
+
+def pack_interval(lo: np.ndarray, hi: np.ndarray, dtype) -> np.ndarray:
+    """[lo, hi] [...] rounded outward and packed into one word each (see above).
+
+    lo, hi: NumPy arrays of one shape with lo <= 0 <= hi, or lo = +inf, hi = -inf
+    (empty); the rounding moves magnitudes up, which is outward only for such intervals.
+    dtype: float32 or float64, the word's width. Returns the words [...] as ``dtype``
+    (bits, not values; :func:`unpack_interval` and :func:`unpack_interval_np` read them).
+    """
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    ok = ((lo <= 0) & (hi >= 0)) | ((lo == np.inf) & (hi == -np.inf))
+    if not np.all(ok):
+        raise ValueError("pack_interval: needs lo <= 0 <= hi (or an empty interval "
+                         "lo = +inf, hi = -inf)")
+    word, half, shift = _HALVES[np.dtype(dtype)]
+    w = (_round_half_away(hi, dtype).astype(word) << word(shift)) | \
+        _round_half_away(lo, dtype).astype(word)
+    return w.view(dtype)
+
+
+def unpack_interval_np(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) [...] in the words' float dtype, the values :func:`unpack_interval`
+    gives (NumPy; for plain reference loops and the Warp kernels)."""
+    words = np.asarray(words)
+    word, half, shift = _HALVES[words.dtype]
+    b = words.view(word)
+    if half == np.uint16:
+        return ((b << np.uint32(16)).view(np.float32),
+                (b & np.uint32(0xFFFF0000)).view(np.float32))
+    lo = (b & np.uint64(0xFFFFFFFF)).astype(np.uint32).view(np.float32)
+    hi = (b >> np.uint64(32)).astype(np.uint32).view(np.float32)
+    return lo.astype(np.float64), hi.astype(np.float64)
+
+
+def unpack_interval(words):
+    """(lo, hi) [...] in the words' float dtype from :func:`pack_interval`'s words (JAX;
+    integer shifts and masks, then bit-casts: exact)."""
+    bc = jax.lax.bitcast_convert_type
+    if words.dtype == jnp.float32:
+        b = bc(words, jnp.uint32)
+        return (bc(b << jnp.uint32(16), jnp.float32),
+                bc(b & jnp.uint32(0xFFFF0000), jnp.float32))
+    b = bc(words, jnp.uint64)
+    lo = bc((b & jnp.uint64(0xFFFFFFFF)).astype(jnp.uint32), jnp.float32)
+    hi = bc((b >> jnp.uint64(32)).astype(jnp.uint32), jnp.float32)
+    return lo.astype(jnp.float64), hi.astype(jnp.float64)
