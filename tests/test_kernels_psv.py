@@ -92,6 +92,8 @@ def test_method_equals_jax_and_reference(name, method):
     ("d_stackless", {"wedge": "vertex"}),
     ("d_psv", {"wedge": "off", "edge_tie": "outside", "order": "distance"}),
     ("d_psv", {"classify_ulps": 0, "order": "mesh", "bias": "cap"}),
+    ("d_hybrid", {"wedge": "signed", "stack_size": 2}),
+    ("d_stackless", {"wedge": "signed"}),
 ])
 def test_options_equal_jax(method, options):
     scene, light, gbuf, _ = _scene("gate")

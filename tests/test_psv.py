@@ -57,7 +57,8 @@ def test_queries_equal_reference(name, precision):
 
 def test_options_keep_the_result():
     scene, light, gbuf, truth = _scene("gate")
-    for opts in ({"wedge": "off"}, {"order": "mesh"}, {"order": "distance"},
+    for opts in ({"wedge": "off"}, {"wedge": "signed"}, {"order": "mesh"},
+                 {"order": "distance"},
                  {"frustum_culling": True}, {"seed": 5}, {"build": "sequential"}):
         r = sl.compute_shadows(scene, gbuf, light, method="d_hybrid", **opts)
         assert np.count_nonzero((r.lit != truth) & gbuf.valid) == 0, opts
@@ -135,15 +136,16 @@ def test_device_node_arrays_live_as_long_as_their_tree():
     assert probe() is None and len(psvm._DEVICE_NODES) == 0
 
 
-def _query_inputs(scene, light, gbuf):
-    """The float32 tree of the methods' defaults and the query's inputs: (tree, samples,
-    points [S, 3], bias scale [S], depth keys [S], homogeneous light [4])."""
+def _query_inputs(scene, light, gbuf, wedge="conservative"):
+    """The float32 tree of the methods' defaults (or another ``wedge``) and the query's
+    inputs: (tree, samples, points [S, 3], bias scale [S], depth keys [S], homogeneous
+    light [4])."""
     samples = view_samples(gbuf, light)
     light_h = sl.scene.view.hard_light(light).homogeneous
     with precision_mode("float32") as dtype:
         tree, scale, _ = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=dtype,
                                          shadow_eps=1e-5, bias="receiver", order="random",
-                                         seed=0, wedge="conservative", classify_ulps=64)
+                                         seed=0, wedge=wedge, classify_ulps=64)
     key = tt.light_key(samples.position, light_h).astype(np.float32)
     return (tree, samples, samples.position.astype(np.float32), scale.astype(np.float32),
             key, light_h)
@@ -391,6 +393,7 @@ def _plain_query(tree, p, scale, key, light_h, query, depth_test, stack_size, we
     """One sample, one node at a time (Python), mirroring docs/psv.md."""
     plane, pos, inter = tree.plane, tree.pos, tree.inter
     dist = 1.0 if light_h[3] == 0 else float(np.linalg.norm(p.astype(np.float64) - light_h[:3]))
+    lo, hi = psvm.wedge_interval_as_queried(tree)     # lo = -wedge unless signed
     node, twice, stack, sl, ret = tree.root, False, [], query == "stackless", -1
     visited = smax = overflows = switches = 0
     while node >= 0:
@@ -399,7 +402,8 @@ def _plain_query(tree, p, scale, key, light_h, query, depth_test, stack_size, we
         off = float(p[0] * plane[node, 0] + p[1] * plane[node, 1] + p[2] * plane[node, 2]
                     + plane[node, 3])
         inside = (off * scale < tree.bound[sv]) if cap else off >= 0
-        wok = cap or wedge == "off" or abs(off) <= tree.wedge[node] * dist + tree.margin
+        wok = cap or wedge == "off" or (lo[node] * dist - tree.margin <= off
+                                        <= hi[node] * dist + tree.margin)
         skip = depth_test and (node & 3) == 0 and key < tree.depth[sv]
         if query == "hybrid" and sl and twice and node == ret:
             sl = False
@@ -442,20 +446,23 @@ def _plain_query(tree, p, scale, key, light_h, query, depth_test, stack_size, we
     return True, visited, smax, overflows, switches
 
 
-@pytest.mark.parametrize("method,query,depth,stack", [
-    ("psv", "stack", False, 2), ("d_psv", "stack", True, 3),
-    ("d_stackless", "stackless", True, 0), ("d_hybrid", "hybrid", True, 2)])
-def test_counters_against_plain_loop(method, query, depth, stack):
+@pytest.mark.parametrize("method,query,depth,stack,wedge", [
+    ("psv", "stack", False, 2, "conservative"), ("d_psv", "stack", True, 3, "conservative"),
+    ("d_stackless", "stackless", True, 0, "conservative"),
+    ("d_hybrid", "hybrid", True, 2, "conservative"),
+    ("psv", "stack", False, 2, "signed"), ("d_stackless", "stackless", True, 0, "signed"),
+    ("d_hybrid", "hybrid", True, 2, "signed")])
+def test_counters_against_plain_loop(method, query, depth, stack, wedge):
     scene, light, gbuf, _ = _scene("sphere_grid", res=24)
     kw = {} if query == "stackless" else {"stack_size": stack}
-    r = sl.compute_shadows(scene, gbuf, light, method=method, **kw)
-    tree, samples, pts, sc, key, light_h = _query_inputs(scene, light, gbuf)
+    r = sl.compute_shadows(scene, gbuf, light, method=method, wedge=wedge, **kw)
+    tree, samples, pts, sc, key, light_h = _query_inputs(scene, light, gbuf, wedge)
     got = {k: r.counters[k][np.unravel_index(samples.index, gbuf.valid.shape)]
            for k in r.counters if k.endswith("_per_pixel")}
     lit = r.lit.reshape(-1)[samples.index]
     for i in range(samples.count):
         l, v, smax, ov, sw = _plain_query(tree, pts[i], sc[i], key[i], light_h, query, depth,
-                                          stack, "conservative")
+                                          stack, wedge)
         assert l == lit[i] and v == got["visited_nodes_per_pixel"][i], i
         if query != "stackless":
             assert smax == got["stack_max_per_pixel"][i]

@@ -80,6 +80,8 @@ def test_light_key_against_a_plain_loop(dtype):
     ("sphere_grid", {"n": 2, "triangles_per_sphere": 128}, "mesh", "vertex", 64),
     ("sphere_grid", {"n": 2, "triangles_per_sphere": 128}, "distance", "conservative", 0),
     ("gate", {"trees": 2, "leaves_per_tree": 40, "bars": 3}, "random", "off", 64),
+    ("soup", {"count": 60}, "random", "signed", 64),
+    ("sphere_grid", {"n": 2, "triangles_per_sphere": 128}, "mesh", "signed", 64),
 ])
 def test_parallel_build_equals_sequential(name, params, order, wedge, ulps, precision):
     scene, light, (par, seq) = _trees(name, params, precision, order, wedge, ulps)
@@ -93,6 +95,52 @@ def test_parallel_build_equals_sequential(name, params, order, wedge, ulps, prec
     links = np.concatenate([par.pos[par.pos >= 0], par.inter[par.inter >= 0], [par.root]])
     merged = np.flatnonzero(par.status == tt.STATUS_MERGED)
     assert np.array_equal(np.sort(links), 4 * merged)
+
+
+@pytest.mark.parametrize("name,params", [
+    ("soup", {"count": 60}), ("sphere_grid", {"n": 2, "triangles_per_sphere": 128})])
+def test_signed_wedge_bounds_every_volume_of_the_subtree(name, params, precision):
+    """wedge="signed": for an edge node, plane(p) / dist(p, light) lies in [wedge_lo,
+    wedge] for points p of every shadow volume in its intersection subtree (checked in
+    float64 on points L + t (x - L), x on the triangle, t >= 1, found by a plain walk of
+    the subtree), and the interval lies inside the symmetric bound of the same tree."""
+    scene, light, (tree, _) = _trees(name, params, precision, "random", "signed")
+    _, _, (sym, _) = _trees(name, params, precision, "random", "conservative")
+    assert tree.same_as(sym) == ["wedge", "wedge_lo"]         # same tree, other bounds
+    light_h = sl.scene.view.hard_light(light).homogeneous
+    assert light_h[3] != 0
+    L = light_h[:3]
+    tris = scene.triangles[tree.tri[: tree.count]]
+    bary = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1 / 3, 1 / 3, 1 / 3], [0.5, 0.5, 0],
+                     [0, 0.5, 0.5], [0.5, 0, 0.5], [0.7, 0.2, 0.1]])
+    t = np.array([1.0, 1.5, 4.0, 50.0])
+    checked = 0
+    edges = [e for e in range(tree.plane.shape[0]) if (e & 3) != 3 and tree.inter[e] >= 0]
+    for e in edges:
+        todo, vols = [int(tree.inter[e])], []
+        while todo:                                   # the intersection subtree's volumes
+            v = todo.pop() >> 2
+            vols.append(v)
+            todo += [int(c) for c in (*tree.pos[4 * v: 4 * v + 4],
+                                      *tree.inter[4 * v: 4 * v + 4]) if c >= 0]
+        x = np.einsum("kj,vjc->vkc", bary, tris[vols])                 # [V, 8, 3]
+        p = L + t[:, None, None, None] * (x[None] - L)                  # [4, V, 8, 3]
+        plane = tree.plane[e].astype(np.float64)
+        ratio = (p @ plane[:3] + plane[3]) / np.linalg.norm(p - L, axis=-1)
+        slack = 1e-4 * max(tree.wedge[e], -tree.wedge_lo[e]) + 1e-5 * (
+            np.abs(plane[3]) / np.linalg.norm(L - tris[vols].mean(axis=1), axis=-1).min())
+        assert ratio.max() <= tree.wedge[e] + slack, e
+        assert ratio.min() >= tree.wedge_lo[e] - slack, e
+        assert tree.wedge_lo[e] <= 0 <= tree.wedge[e]
+        assert -sym.wedge[e] <= tree.wedge_lo[e] and tree.wedge[e] <= sym.wedge[e]
+        checked += len(vols)
+    assert len(edges) > 20 and checked > 100
+    # The interval is narrower than the symmetric bound where one side is short.
+    width = np.array([tree.wedge[e] - tree.wedge_lo[e] for e in edges])
+    assert np.mean(width) < 0.95 * 2 * np.mean(sym.wedge[edges])
+    # nodes without an intersection child hold the empty interval
+    empty = (tree.inter < 0)
+    assert np.all(tree.wedge[empty] == -np.inf) and np.all(tree.wedge_lo[empty] == np.inf)
 
 
 def test_depth_and_ancestor_against_a_plain_loop(precision):

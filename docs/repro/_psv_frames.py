@@ -1,4 +1,6 @@
 """Shared set-up of the PSV repro scripts: scene specs, frames and the query's inputs."""
+import os
+
 import numpy as np
 
 import shadowlab as sl
@@ -22,6 +24,16 @@ def frame(spec: str, res: int):
     scene = sl.load_scene(name, **kw)
     view = default_view(name, scene)
     return scene, view, sl.render_gbuffer(scene, view.camera.replace(resolution=(res, res)))
+
+
+def method_rows(specs, res: int, methods):
+    """Per scene spec and method: (scene, view, G-buffer, method, row), the row a dict
+    that starts with the spec, its triangle count, the method and the 1-minute load."""
+    for spec in specs:
+        scene, view, gbuf = frame(spec, res)
+        for m in methods:
+            yield scene, view, gbuf, m, {"scene": spec, "triangles": scene.num_triangles,
+                                         "method": m, "load_start": os.getloadavg()[0]}
 
 
 def query_inputs(scene, view, gbuf):

@@ -30,7 +30,7 @@ wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
 MAX_STACK = 64                       # the local stack's capacity (stack_size <= MAX_STACK)
 QUERY_CODES = {"stack": 0, "stackless": 1, "hybrid": 2}
-WEDGE_CODES = {"conservative": 0, "vertex": 1, "off": 2}
+WEDGE_CODES = {"conservative": 0, "vertex": 1, "off": 2, "signed": 3}
 STATUS_UNUSED, STATUS_MERGED, STATUS_DROPPED = 0, 1, 2
 
 StackVec = wp.types.vector(length=MAX_STACK, dtype=wp.int32)
@@ -66,6 +66,7 @@ def _insert(r: wp.int32,
             margin: wp.float32, cap_extra: wp.float32, wedge_mode: wp.int32,
             root: wp.array(dtype=wp.int32), pos: wp.array(dtype=wp.int32),
             inter: wp.array(dtype=wp.int32), wedge: wp.array(dtype=wp.float32),
+            wedge_lo: wp.array(dtype=wp.float32),
             depth: wp.array(dtype=wp.float32), anc: wp.array(dtype=wp.int32),
             level: wp.array(dtype=wp.int32), status: wp.array(dtype=wp.int32),
             cas_failures: wp.array(dtype=wp.int32)):
@@ -119,6 +120,10 @@ def _insert(r: wp.int32,
                     cand = wp.max(wp.max(wp.abs(v0) * inv_vdist[r, 0],
                                          wp.abs(v1) * inv_vdist[r, 1]),
                                   wp.abs(v2) * inv_vdist[r, 2])
+                elif wedge_mode == 3:               # "signed": upper and lower end
+                    cand = wp.max(wp.max(wp.max(v0, v1), v2), 0.0) * inv_dist[r]
+                    wp.atomic_min(wedge_lo, node,
+                                  wp.min(wp.min(wp.min(v0, v1), v2), 0.0) * inv_dist[r])
                 else:                               # "conservative"
                     cand = wp.max(wp.max(wp.abs(v0), wp.abs(v1)), wp.abs(v2)) * inv_dist[r]
                 wp.atomic_max(wedge, node, cand)
@@ -153,6 +158,7 @@ def top_insert(plane: wp.array2d(dtype=wp.float32), verts: wp.array3d(dtype=wp.f
                wedge_mode: wp.int32, serial: wp.int32,
                root: wp.array(dtype=wp.int32), pos: wp.array(dtype=wp.int32),
                inter: wp.array(dtype=wp.int32), wedge: wp.array(dtype=wp.float32),
+               wedge_lo: wp.array(dtype=wp.float32),
                depth: wp.array(dtype=wp.float32), anc: wp.array(dtype=wp.int32),
                level: wp.array(dtype=wp.int32), status: wp.array(dtype=wp.int32),
                cas_failures: wp.array(dtype=wp.int32)):
@@ -161,12 +167,14 @@ def top_insert(plane: wp.array2d(dtype=wp.float32), verts: wp.array3d(dtype=wp.f
     if serial != 0:
         for r in range(count):
             _insert(r, plane, verts, key, inv_dist, inv_vdist, margin, cap_extra, wedge_mode,
-                    root, pos, inter, wedge, depth, anc, level, status, cas_failures)
+                    root, pos, inter, wedge, wedge_lo, depth, anc, level, status,
+                    cas_failures)
     else:
         r = rank_of_thread[t]
         if r < count:
             _insert(r, plane, verts, key, inv_dist, inv_vdist, margin, cap_extra, wedge_mode,
-                    root, pos, inter, wedge, depth, anc, level, status, cas_failures)
+                    root, pos, inter, wedge, wedge_lo, depth, anc, level, status,
+                    cas_failures)
 
 
 @wp.kernel
@@ -191,6 +199,7 @@ def _plane_value(plane: wp.array2d(dtype=wp.float32), n: wp.int32, px: wp.float3
 @wp.kernel
 def top_query(plane: wp.array2d(dtype=wp.float32), pos: wp.array(dtype=wp.int32),
               inter: wp.array(dtype=wp.int32), wedge: wp.array(dtype=wp.float32),
+              wedge_lo: wp.array(dtype=wp.float32),
               depth: wp.array(dtype=wp.float32), anc: wp.array(dtype=wp.int32),
               bound: wp.array(dtype=wp.float32), root: wp.int32,
               pts: wp.array2d(dtype=wp.float32), scale: wp.array(dtype=wp.float32),
@@ -259,6 +268,16 @@ def top_query(plane: wp.array2d(dtype=wp.float32), pos: wp.array(dtype=wp.int32)
                 else:
                     lim = wedge[n] * dist + tol
                 wedge_ok = wp.abs(off) <= lim
+            elif wedge_mode == 3:           # signed: lo * dist - tol <= off <= hi * dist + tol
+                lim_hi = wp.float32(0.0)
+                lim_lo = wp.float32(0.0)
+                if fma != 0:
+                    lim_hi = fma32(wedge[n], dist, tol)
+                    lim_lo = fma32(wedge_lo[n], dist, -tol)
+                else:
+                    lim_hi = wedge[n] * dist + tol
+                    lim_lo = wedge_lo[n] * dist - tol
+                wedge_ok = off <= lim_hi and off >= lim_lo
         skip = depth_test != 0 and (n & 3) == 0 and k < depth[sv]
         a_link = anc[sv]
         visited += 1
@@ -402,6 +421,7 @@ def build_tree(inp, wedge: str = "conservative", schedule: str = "threads",
         pos=wp.full(n, -1, dtype=wp.int32, device=dev),
         inter=wp.full(n, -1, dtype=wp.int32, device=dev),
         wedge=wp.full(n, -np.inf, dtype=wp.float32, device=dev),
+        wedge_lo=wp.full(n, np.inf, dtype=wp.float32, device=dev),
         depth=wp.full(c, np.inf, dtype=wp.float32, device=dev),
         anc=wp.full(c, -1, dtype=wp.int32, device=dev),
         level=wp.full(c, -1, dtype=wp.int32, device=dev),
@@ -420,7 +440,8 @@ def build_tree(inp, wedge: str = "conservative", schedule: str = "threads",
     h = {k: v.numpy() for k, v in outs.items()}
     tree = tt.TopTree(inp.planes.reshape(n, 4).copy(), h["pos"], h["inter"], h["wedge"],
                       h["depth"], h["anc"], h["level"], h["status"], inp.tri.copy(),
-                      inp.bound.copy(), int(h["root"][0]), inp.count, 1, inp.margin)
+                      inp.bound.copy(), int(h["root"][0]), inp.count, 1, inp.margin,
+                      h["wedge_lo"] if wedge == "signed" else None)
     return tree, {"cas_failures": int(h["cas_failures"][0])}
 
 
@@ -444,9 +465,12 @@ def query(tree, points, scale, key, light_h, *, query: str, depth_test: bool, we
     outs = [wp.zeros(max(s, 1), dtype=wp.int32, device=dev) for _ in range(5)]
     if s:
         lh = light_h.astype(f32)
+        # the interval as the JAX query reads it (a signed wedge's ends rounded outward)
+        from ..methods.psv import wedge_interval_as_queried
+        lo, hi = wedge_interval_as_queried(tree)
         wp.launch(top_query, dim=s, device=dev, inputs=[
             _arr(tree.plane, f32, dev), _arr(tree.pos, i32, dev), _arr(tree.inter, i32, dev),
-            _arr(tree.wedge, f32, dev), _arr(tree.depth, f32, dev), _arr(tree.anc, i32, dev),
+            _arr(hi, f32, dev), _arr(lo, f32, dev), _arr(tree.depth, f32, dev), _arr(tree.anc, i32, dev),
             _arr(tree.bound, f32, dev), int(tree.root), _arr(points, f32, dev),
             _arr(scale, f32, dev), _arr(key, f32, dev), wp.vec4f(*lh), f32(tree.margin),
             QUERY_CODES[query], int(depth_test), WEDGE_CODES[wedge], int(stack_size),

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.capacity import CapacityError, bucket, check_int32, pad
-from ..core.numerics import materialize
+from ..core.numerics import materialize, pack_interval, unpack_interval, unpack_interval_np
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.caches import per_scene_cache
 from ..scene.view import hard_light
@@ -248,6 +248,9 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             else:
                 if wedge == "vertex":
                     wedge_ok = jnp.abs(off) < wv * dist
+                elif wedge == "signed":
+                    lo, hi = unpack_interval(wv)
+                    wedge_ok = (off <= hi * dist + tol) & (off >= lo * dist - tol)
                 else:
                     wedge_ok = jnp.abs(off) <= wv * dist + tol
             wedge_ok = wedge_ok | is_cap
@@ -492,13 +495,33 @@ def unpack_state(s: dict, lane_count: str) -> dict:
     return out
 
 
+def wedge_words(tree: tt.TopTree) -> np.ndarray:
+    """[N] tree dtype: the wedge field the query reads. The bound itself, or for a signed
+    wedge (``tree.wedge_lo`` set) the interval [wedge_lo, wedge] packed in one word,
+    each end rounded outward to half the dtype's width (``core.numerics.pack_interval``),
+    so that the node row keeps its eight fields."""
+    if tree.wedge_lo is None:
+        return tree.wedge
+    return pack_interval(tree.wedge_lo, tree.wedge, tree.plane.dtype)
+
+
+def wedge_interval_as_queried(tree: tt.TopTree) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) [N]: the wedge interval the query tests, ``lo * dist - tol <= plane(p) <=
+    hi * dist + tol`` (for a symmetric wedge lo = -wedge, the same test as
+    ``|plane(p)| <= wedge * dist + tol``)."""
+    if tree.wedge_lo is None:
+        return -tree.wedge, tree.wedge
+    return unpack_interval_np(wedge_words(tree))
+
+
 def node_arrays(tree: tt.TopTree, rows: bool = True) -> tuple:
     """The query's node data.
 
     ``rows``: rows [N, 8] (plane a, b, c, d, wedge, extra, pos, inter; extra = depth at a
     volume's first node, cap bias bound at its cap; pos and inter bit-cast to the float
     dtype's bits, int32 or int64) and anc [C]. Otherwise one 1D array per field: a, b,
-    c, d, wedge, pos, inter, extra [N] and anc [C].
+    c, d, wedge, pos, inter, extra [N] and anc [C]. The wedge field is
+    :func:`wedge_words`.
     """
     n = tree.plane.shape[0]
     dt = tree.plane.dtype
@@ -507,11 +530,12 @@ def node_arrays(tree: tt.TopTree, rows: bool = True) -> tuple:
     extra[3::4] = tree.bound
     if not rows:
         return (tree.plane[:, 0].copy(), tree.plane[:, 1].copy(), tree.plane[:, 2].copy(),
-                tree.plane[:, 3].copy(), tree.wedge, tree.pos, tree.inter, extra, tree.anc)
+                tree.plane[:, 3].copy(), wedge_words(tree), tree.pos, tree.inter, extra,
+                tree.anc)
     it = np.int32 if dt == np.float32 else np.int64
     out = np.zeros((n, 8), dt)
     out[:, :4] = tree.plane
-    out[:, 4] = tree.wedge
+    out[:, 4] = wedge_words(tree)
     out[:, 5] = extra
     out[:, 6] = tree.pos.astype(it).view(dt)
     out[:, 7] = tree.inter.astype(it).view(dt)
@@ -820,8 +844,10 @@ _COMMON = {
     "seed": Option(0, "seed of the random insertion order", kind=int, minimum=0),
     "wedge": Option("conservative", "wedge optimization: 'conservative' (a provable bound: "
                     "max vertex distance to the plane / triangle distance to the light), "
-                    "'vertex' (the public code's max vertex angle, not a bound for wide "
-                    "triangles), 'off'", allowed=tt.WEDGES),
+                    "'signed' (the same bound kept per side of the plane, an interval: "
+                    "fewer visits, a dearer node test; docs/psv.md), 'vertex' (the public "
+                    "code's max vertex angle, not a bound for wide triangles), 'off'",
+                    allowed=tt.WEDGES),
     "classify_ulps": Option(64, "classification margin in machine epsilons of the largest "
                             "coordinate: a triangle within it of a plane goes to the "
                             "intersection child (0 = the paper's plain sign test)",

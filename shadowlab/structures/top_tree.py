@@ -19,7 +19,9 @@ Layout (structure of arrays, ``C`` = shadow-volume capacity, ``N = 4 * C`` nodes
   link always points at the first node ``4s`` of a shadow volume.
 - ``wedge`` [N]: for an edge node, a bound on ``|plane(p)| / dist(p)`` over every point
   ``p`` inside a shadow volume of its intersection subtree (``dist`` the distance to
-  the light, 1 for a directional light); -inf without an intersection child.
+  the light, 1 for a directional light); -inf without an intersection child. With
+  ``wedge="signed"`` it bounds ``plane(p) / dist(p)`` from above and ``wedge_lo`` [N]
+  from below (+inf without an intersection child): an interval, not a symmetric bound.
 - Per shadow volume [C]: ``depth`` (the smallest light-to-triangle distance over every
   triangle that passed through the volume's first node during the build, in "key"
   units, see :func:`light_key`), ``anc`` (the ancestor link: the node whose
@@ -49,7 +51,7 @@ from ..core.numerics import materialize, norms3, opaque_multiplier, ordered_dot
 
 STATUS_UNUSED, STATUS_MERGED, STATUS_DROPPED = 0, 1, 2
 ORDERS = ("random", "mesh", "distance")
-WEDGES = ("conservative", "vertex", "off")
+WEDGES = ("conservative", "signed", "vertex", "off")
 
 
 # --------------------------------------------------------------------------- geometry
@@ -122,6 +124,8 @@ class TopTree:
 
     Attributes:
         plane: [N, 4] dtype; pos, inter: int32 [N]; wedge: [N] dtype.
+        wedge_lo: [N] dtype, the lower end of the signed wedge interval (``wedge`` is
+            its upper end) for ``wedge="signed"``; None for the other modes.
         depth: [C] dtype (key units, rounded down by ``margin``); anc, level, status:
             int32 [C]; tri: int32 [C], the scene triangle of each rank (-1 = padding).
         bound: [C] dtype, the cap bias bound of each volume (``common.bias_terms``).
@@ -144,6 +148,7 @@ class TopTree:
     count: int
     rounds: int
     margin: float
+    wedge_lo: np.ndarray | None = None
 
     @property
     def capacity(self) -> int:
@@ -169,6 +174,9 @@ class TopTree:
         for f in ("plane", "pos", "inter", "wedge", "depth", "anc", "level", "status", "tri"):
             if not np.array_equal(getattr(self, f), getattr(other, f)):
                 out.append(f)
+        if (self.wedge_lo is None) != (other.wedge_lo is None) or (
+                self.wedge_lo is not None and not np.array_equal(self.wedge_lo, other.wedge_lo)):
+            out.append("wedge_lo")
         if self.root != other.root:
             out.append("root")
         return out
@@ -200,6 +208,7 @@ class TopTree:
         return dataclasses.replace(
             self, plane=per_node(self.plane), pos=relink[per_node(self.pos)],
             inter=relink[per_node(self.inter)], wedge=per_node(self.wedge),
+            wedge_lo=None if self.wedge_lo is None else per_node(self.wedge_lo),
             depth=self.depth[volumes], anc=relink[self.anc[volumes]],
             level=self.level[volumes], status=self.status[volumes], tri=self.tri[volumes],
             bound=self.bound[volumes], root=int(relink[self.root]))
@@ -331,9 +340,17 @@ def _classify(xp, mul, vals, is_cap, margin, cap_extra):
 
 
 def _wedge_candidate(xp, mul, vals, inv_dist, inv_vdist, wedge):
+    """A straddling triangle's wedge candidate: the bound (upper end for "signed")."""
     if wedge == "vertex":
         return xp.max(mul(xp.abs(vals), inv_vdist), axis=-1)
+    if wedge == "signed":
+        return mul(xp.maximum(xp.max(vals, axis=-1), 0), inv_dist)
     return mul(xp.max(xp.abs(vals), axis=-1), inv_dist)
+
+
+def _wedge_lo_candidate(xp, mul, vals, inv_dist):
+    """The signed wedge's lower end for a straddling triangle (docs/psv.md, "Wedge")."""
+    return mul(xp.minimum(xp.min(vals, axis=-1), 0), inv_dist)
 
 
 # --------------------------------------------------------------------------- sequential build
@@ -351,6 +368,7 @@ def build_sequential(inp: BuildInput, wedge: str = "conservative") -> TopTree:
     pos = np.full(n, -1, np.int32)
     inter = np.full(n, -1, np.int32)
     wedge_v = np.full(n, -np.inf, dt)
+    wedge_lo = np.full(n, np.inf, dt) if wedge == "signed" else None
     depth = np.full(c, np.inf, dt)
     anc = np.full(c, -1, np.int32)
     level = np.full(c, -1, np.int32)
@@ -385,6 +403,9 @@ def build_sequential(inp: BuildInput, wedge: str = "conservative") -> TopTree:
                     cand = _wedge_candidate(np, mul, vals, inp.inv_dist[r], inp.inv_vdist[r],
                                             wedge)
                     wedge_v[node] = max(wedge_v[node], cand)
+                    if wedge_lo is not None:
+                        wedge_lo[node] = min(wedge_lo[node],
+                                             _wedge_lo_candidate(np, mul, vals, inp.inv_dist[r]))
                 links = inter
             else:
                 links = pos
@@ -397,7 +418,8 @@ def build_sequential(inp: BuildInput, wedge: str = "conservative") -> TopTree:
         if status[r] == STATUS_MERGED:
             depth[r] = min(depth[r], inp.key[r])
     return TopTree(plane.copy(), pos, inter, wedge_v, depth, anc, level, status,
-                   inp.tri.copy(), inp.bound.copy(), root, inp.count, inp.count, inp.margin)
+                   inp.tri.copy(), inp.bound.copy(), root, inp.count, inp.count, inp.margin,
+                   wedge_lo)
 
 
 # --------------------------------------------------------------------------- parallel build
@@ -406,7 +428,8 @@ def _round_impl(st, lanes, nlive, planes, verts, key, inv_dist, inv_vdist, margi
                 zero, *, wedge):
     """One build round for the pending triangles ``lanes`` (see :func:`build_parallel`).
 
-    ``st``: wedge [N + 1], depth [C + 1] and the claim table [2N + 1] (every entry
+    ``st``: wedge [N + 1] (and wedge_lo [N + 1] for "signed"), depth [C + 1] and the
+    claim table [2N + 1] (every entry
     ``big`` between rounds), each with a scratch entry at the end; donated, updated in
     place. The winners' links (pos, inter, anc, level, status) are set by the host.
     ``lanes``: rank, cur (first node of the volume to descend), last, steps [B], sorted
@@ -460,12 +483,20 @@ def _round_impl(st, lanes, nlive, planes, verts, key, inv_dist, inv_vdist, margi
         ivd = [g(inv_vdist[k], r) for k in range(3)]
         wcand = jnp.maximum(jnp.maximum(mul(jnp.abs(val[0]), ivd[0]), mul(jnp.abs(val[1]), ivd[1])),
                             mul(jnp.abs(val[2]), ivd[2]))
+    elif wedge == "signed":
+        idist = g(inv_dist, r)
+        vmax = jnp.maximum(jnp.maximum(jnp.maximum(val[0], val[1]), val[2]), 0)
+        vmin = jnp.minimum(jnp.minimum(jnp.minimum(val[0], val[1]), val[2]), 0)
+        wcand, wlo = mul(vmax, idist), mul(vmin, idist)
     else:
         amax = jnp.maximum(jnp.maximum(jnp.abs(val[0]), jnp.abs(val[1])), jnp.abs(val[2]))
         wcand = mul(amax, g(inv_dist, r))
     # Materialize the classification once: every later output would otherwise recompute
     # it in its own loop fusion (XLA/CPU; eight copies before, measured in the HLO).
-    jc, wcand = materialize(j | (code << 2), wcand)
+    if wedge == "signed":
+        jc, wcand, wlo = materialize(j | (code << 2), wcand, wlo)
+    else:
+        jc, wcand = materialize(j | (code << 2), wcand)
     j, code = jc & 3, jc >> 2
     node = cur + j
     steps = lanes["steps"] + j + 1
@@ -478,6 +509,9 @@ def _round_impl(st, lanes, nlive, planes, verts, key, inv_dist, inv_vdist, margi
     isect = live & (code == 2)
     wmask = isect & (j < 3) & (wedge != "off")
     wedge_v = st["wedge"].at[jnp.where(wmask, node, n)].max(wcand, mode=pib)
+    new = dict(wedge=wedge_v)
+    if wedge == "signed":
+        new["wedge_lo"] = st["wedge_lo"].at[jnp.where(wmask, node, n)].min(wlo, mode=pib)
     claimant = live & ~drop
     ck = jnp.where(claimant, 2 * node + (code == 2), 2 * n)
     table = st["table"].at[ck].min(lane, mode=pib)        # lowest rank = lowest lane
@@ -489,7 +523,7 @@ def _round_impl(st, lanes, nlive, planes, verts, key, inv_dist, inv_vdist, margi
         won.astype(jnp.int32) << 30)
     out = dict(word=word, cur=4 * g(r, wl), steps=steps,
                last=jnp.where(isect, node, lanes["last"]))
-    return dict(wedge=wedge_v, depth=depth, table=table), out
+    return dict(new, depth=depth, table=table), out
 
 
 # Planes and vertices as rows [C, 16] / [C, 9] read with one row gather per lane (a
@@ -554,6 +588,8 @@ def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> 
         # One scratch entry past the end of every device array (see _round_impl).
         st = dict(wedge=np.full(n + 1, -np.inf, dt), depth=np.full(c + 1, np.inf, dt),
                   table=np.full(2 * n + 1, 2 ** 31 - 1, np.int32))
+        if wedge == "signed":
+            st["wedge_lo"] = np.full(n + 1, np.inf, dt)
         root, rounds = -1, 0
         if count > 0:                 # round 0: rank 0 claims the empty root alone
             root, rounds = 0, 1
@@ -600,6 +636,7 @@ def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> 
     with stage("build_setup"):
         depth = _final_depth(st["depth"][:c], jnp.asarray(status), args[2])
         wedge_v = np.asarray(st["wedge"])[:n]
+        wedge_lo = np.asarray(st["wedge_lo"])[:n] if wedge == "signed" else None
         return TopTree(inp.planes.reshape(-1, 4).copy(), pos, inter, wedge_v, np.asarray(depth),
                        anc, level, status, inp.tri.copy(), inp.bound.copy(), int(root), count,
-                       int(rounds), inp.margin)
+                       int(rounds), inp.margin, wedge_lo)
