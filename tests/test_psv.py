@@ -371,6 +371,20 @@ def test_tile_order_groups_pixels_by_tile():
     assert samples.tile_order(1).tolist() == list(range(samples.count))
 
 
+def test_a_tree_is_queried_with_its_own_wedge():
+    """A signed tree's wedge field is a packed interval, a symmetric tree's a bound: a
+    query with the other wedge mode is refused (JAX and the Warp kernels)."""
+    from shadowlab.kernels import psv as kpsv
+    scene, light, gbuf, _ = _scene("gate")
+    for built, asked in (("signed", "conservative"), ("conservative", "signed"),
+                         ("signed", "vertex")):
+        tree, samples, pts, sc, key, light_h = _query_inputs(scene, light, gbuf, built)
+        for run in (psvm.run_query, kpsv.query):
+            with pytest.raises(ValueError, match="does not match the tree"):
+                run(tree, pts, sc, key, light_h, query="stack", depth_test=True,
+                    wedge=asked, stack_size=4)
+
+
 def test_stack_overflow_is_detected_and_hybrid_switches():
     scene, light, gbuf, truth = _scene("fuzzy")
     r = sl.compute_shadows(scene, gbuf, light, method="psv", stack_size=1)
