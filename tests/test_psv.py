@@ -371,6 +371,43 @@ def test_tile_order_groups_pixels_by_tile():
     assert samples.tile_order(1).tolist() == list(range(samples.count))
 
 
+@pytest.mark.parametrize("name,stack_size,stall_limit", [
+    ("sphere_grid", 12, None), ("fuzzy", 2, None), ("sphere_grid", 12, 9)])
+def test_hybrid_counts_in_the_word_equal_the_array(monkeypatch, name, stack_size,
+                                                   stall_limit):
+    """HYBRID_FAST_IN_WORD: the stack-only chunks keep visit counts in the state word
+    until the first stall (or until a stall step would not fit its field: a limit of 9
+    steps here), then the array takes over. Every counter and the lit mask equal the
+    runs that keep the array throughout, with no stall, with switches, and past the
+    limit; the visits also equal the plain loop's."""
+    scene, light, gbuf, _ = _scene(name)
+    runs, moves = {}, []
+    real_run = psvm.StageTimer.run
+
+    def counting_run(self, stage, fn, *args):
+        if fn is psvm._visits_to_array:
+            moves.append(stage)
+        return real_run(self, stage, fn, *args)
+    monkeypatch.setattr(psvm.StageTimer, "run", counting_run)
+    if stall_limit is not None:
+        monkeypatch.setattr(psvm, "STALL_STEP_MAX", stall_limit)
+    for flag in (False, True):
+        monkeypatch.setattr(psvm, "HYBRID_FAST_IN_WORD", flag)
+        runs[flag] = sl.compute_shadows(scene, gbuf, light, method="d_hybrid",
+                                        stack_size=stack_size, chunk=4)
+    _same(runs[False], runs[True])
+    switches = runs[True].counters["stackless_switches"]
+    assert (switches > 0) == (stack_size == 2)
+    assert runs[True].counters["query_chunks"] > 10
+    # the counts left the word once where a lane stalled or the limit came, else never
+    assert len(moves) == (0 if switches == 0 and stall_limit is None else 1)
+    tree, samples, pts, sc, key, light_h = _query_inputs(scene, light, gbuf)
+    got = runs[True].counters["visited_nodes_per_pixel"].reshape(-1)[samples.index]
+    for i in np.random.default_rng(2).choice(samples.count, 40, replace=False):
+        assert _plain_query(tree, pts[i], sc[i], key[i], light_h, "hybrid", True,
+                            stack_size, "conservative")[1] == got[i], i
+
+
 def test_a_tree_is_queried_with_its_own_wedge():
     """A signed tree's wedge field is a packed interval, a symmetric tree's a bound: a
     query with the other wedge mode is refused (JAX and the Warp kernels)."""

@@ -169,7 +169,8 @@ def node_order_for(option: str, reuse_tree: bool) -> str:
 
 @functools.lru_cache(maxsize=None)
 def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, overflow: str,
-                  stackless_cap: str, edge_tie: str, directional: bool, fast: bool = False):
+                  stackless_cap: str, edge_tie: str, directional: bool, fast: bool = False,
+                  fast_in_word: bool = False):
     """A jitted function running ``steps`` node visits of every lane of a bucket.
 
     ``steps`` is an int32 argument, not a compile-time constant: one compiled kernel per
@@ -194,6 +195,11 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
     visit, no state change, sign bit of its word set) and the host runs the full hybrid
     step on that bucket from the next chunk on. The full step costs twice the stack
     step (both transitions and the return node are computed for every lane).
+    ``fast_in_word`` (with ``fast``, until the query's first stall): no visit counter
+    array; a finished lane keeps its count in its node field (as ``VISITS_IN_WORD``)
+    and a stalling lane the step it stalled at in its stats word's count field (its
+    visits so far: no lane has idled before); :func:`_visits_to_array` turns both into
+    the array when the hybrid leaves this mode.
     """
     k = max(stack_size, 1)
 
@@ -213,7 +219,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
         b = px.shape[0]
         lanes = jnp.arange(b, dtype=jnp.int32) + stack_at
 
-        in_word = VISITS_IN_WORD[query]
+        in_word = VISITS_IN_WORD[query] or (fast and fast_in_word)
 
         def step(step_no, s):
             w = s["word"]
@@ -316,7 +322,7 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
                 switch = lost = jnp.zeros_like(act)
                 st_mode = act & ~stall
                 push = push & ~stall
-                visited = s["visited"] + st_mode
+                visited = None if in_word else s["visited"] + st_mode
             elif query == "hybrid":
                 switch = full
                 lost = jnp.zeros_like(act)
@@ -375,6 +381,8 @@ def _chunk_kernel(query: str, depth_test: bool, wedge: str, stack_size: int, ove
             new_sp = jnp.where(st_mode, sp2, sp)
             extra_count = lost if query == "stack" else switch
             stats = new_sp | (smax << 6) | (((st_word >> 12) + extra_count) << 12)
+            if fast and in_word:        # a stalling lane's visits so far, in its count field
+                stats = jnp.where(stall, (stats & 4095) | ((base + step_no) << 12), stats)
             out = dict(s, word=word, stack=stack, stats=stats)
             if not in_word:
                 out["visited"] = visited
@@ -437,6 +445,9 @@ BARRIER = True
 #: 0.88-0.91x; the stackless query's 0.94-0.95x but 1.08x on fuzzy, so it keeps its
 #: array (docs/psv.md, "Visit counts in the state word"; docs/repro/psv_visits_ab.py).
 VISITS_IN_WORD = {"stack": True, "stackless": False, "hybrid": False}
+#: The hybrid's stack-only step (``fast``) keeps counts in the word too until the query's
+#: first stall (then the array takes over; docs/psv.md, "Visit counts in the state word").
+HYBRID_FAST_IN_WORD = True
 # Node layout per query: packed [N, 8] rows (stack queries: the row gather costs half of
 # eight 1D gathers there) or one 1D array per field (stackless: 2.6x faster so; measured).
 ROWS = {"stack": True, "hybrid": True, "stackless": False}
@@ -469,6 +480,7 @@ STALL = np.int32(np.iinfo(np.int32).min)    # sign bit: hybrid lane waiting for 
 MAX_STACK = 63          # the stats word keeps the stack pointer and maximum in 6 bits
 COUNT_MAX = (1 << 19) - 1   # and a lane's overflow / switch count in bits 12-30
 VISIT_LIMIT = NODE_MASK     # visits a finished lane's node field holds (VISITS_IN_WORD)
+STALL_STEP_MAX = COUNT_MAX  # a stalled lane's step in its count field (HYBRID_FAST_IN_WORD)
 
 
 def _pack(node, twice, sl, shadow, done):
@@ -579,6 +591,17 @@ def _init_kernel(b: int, query: str):
             s["ret"] = jnp.full(b, -1, jnp.int32)
         return s
     return jax.jit(init, donate_argnums=2)
+
+
+@jax.jit
+def _visits_to_array(word, stats, base):
+    """(visited, stats) [B] of a hybrid state after stack-only chunks that kept visit
+    counts in the word (``fast_in_word``): a finished lane's count from its node field,
+    a stalled lane's from its count field (the step it stalled at), else ``base`` (every
+    step so far visited one node); the count field cleared for the switch count."""
+    visited = jnp.where((word & DONE) != 0, word & NODE_MASK,
+                        jnp.where(word < 0, stats >> 12, base))
+    return visited, stats & 4095
 
 
 @functools.lru_cache(maxsize=None)
@@ -759,11 +782,15 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
             stack = _take_stack(spare, stack_buffer_size(b, k))
     state = timer.run("query_setup", _init_kernel(b, query), jnp.int32(live0),
                       jnp.int32(max(tree.root, 0)), stack)
-    fast = None
+    fast = fast_word = None
     if query == "hybrid":
         fast = _chunk_kernel(query, depth_test, wedge, stack_size, "lose", stackless_cap,
                              edge_tie, bool(light_h[3] == 0), True)
+        if HYBRID_FAST_IN_WORD:
+            fast_word = _chunk_kernel(query, depth_test, wedge, stack_size, "lose",
+                                      stackless_cap, edge_tie, bool(light_h[3] == 0), True, True)
     use_fast = fast is not None
+    in_word_phase = fast_word is not None     # counts in the word (no stall yet)
     dest = None
     raw_fields = [name for name in state if name not in ("stack", "ret")]
     finished = {name: [] for name in ("ids", *raw_fields)}
@@ -774,8 +801,16 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
         if VISITS_IN_WORD[query] and base + steps > VISIT_LIMIT:
             raise CapacityError(f"PSV query: more than {VISIT_LIMIT:,} node visits per sample "
                                 "(a finished lane keeps its visit count in its node field)")
+        if in_word_phase and (not use_fast or base + steps > STALL_STEP_MAX):
+            # a lane stalled (or a stall step would not fit its count field): counts
+            # move into the array the other hybrid steps update
+            visited, stats = timer.run("query_compact", _visits_to_array, state["word"],
+                                       state["stats"], jnp.int32(base))
+            state = dict(state, visited=visited, stats=stats)
+            in_word_phase = False
         args = (state, treeargs, *dev, light, tol, jnp.int32(steps), jnp.int32(base))
-        state = timer.run("query", fast if use_fast else kernel, *args)
+        step_fn = (fast_word if in_word_phase else fast) if use_fast else kernel
+        state = timer.run("query", step_fn, *args)
         base += steps
         n_chunks += 1
         with timer.stage("query_compact"):
@@ -794,7 +829,10 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
             fin = np.flatnonzero(done)
             finished["ids"].append(lane_id.take(fin))
             for name in raw_fields:
-                v = word if name == "word" else np.asarray(state[name])[:live]
+                if name == "visited" and in_word_phase:       # counts in the node field
+                    v = word & NODE_MASK
+                else:
+                    v = word if name == "word" else np.asarray(state[name])[:live]
                 finished[name].append(v.take(fin))
             if len(keep) == 0:
                 break
