@@ -408,6 +408,18 @@ def test_hybrid_counts_in_the_word_equal_the_array(monkeypatch, name, stack_size
                             stack_size, "conservative")[1] == got[i], i
 
 
+def test_visits_move_from_the_word_to_the_array():
+    """_visits_to_array on hand-made lanes: a finished lane's count from its node field,
+    a stalled lane's from its stats count field, a running lane's = the query's steps so
+    far, padding 0; the count field cleared, stack pointer and maximum kept."""
+    DONE, STALL, SHADOW = psvm.DONE, int(psvm.STALL), psvm.SHADOW
+    word = np.array([DONE | 17, DONE | SHADOW | 3, STALL | 40, 12, DONE], np.int32)
+    stats = np.array([5 | (7 << 6), 0, 3 | (4 << 6) | (21 << 12), 2 | (2 << 6), 0], np.int32)
+    visited, new = psvm._visits_to_array(word, stats, np.int32(30))
+    assert np.asarray(visited).tolist() == [17, 3, 21, 30, 0]
+    assert np.asarray(new).tolist() == [5 | (7 << 6), 0, 3 | (4 << 6), 2 | (2 << 6), 0]
+
+
 def test_a_tree_is_queried_with_its_own_wedge():
     """A signed tree's wedge field is a packed interval, a symmetric tree's a bound: a
     query with the other wedge mode is refused (JAX and the Warp kernels)."""

@@ -441,7 +441,8 @@ BARRIER = True
 #: Per query: keep no visit counter array, but a finished lane's count in its state
 #: word's node field. A lane that finishes at step ``i`` of the query has visited
 #: ``i + 1`` nodes (every lane runs from step 0; only the hybrid's stack-only step idles
-#: lanes, so the hybrid cannot). One loop output fewer: the stack query's kernels
+#: lanes, so the hybrid does this only until its first stall: ``HYBRID_FAST_IN_WORD``).
+#: One loop output fewer: the stack query's kernels
 #: 0.88-0.91x; the stackless query's 0.94-0.95x but 1.08x on fuzzy, so it keeps its
 #: array (docs/psv.md, "Visit counts in the state word"; docs/repro/psv_visits_ab.py).
 VISITS_IN_WORD = {"stack": True, "stackless": False, "hybrid": False}
