@@ -456,9 +456,7 @@ def query(tree, points, scale, key, light_h, *, query: str, depth_test: bool, we
     and wedge expressions as XLA does.
     """
     dev = init(device)
-    if (wedge == "signed") != (tree.wedge_lo is not None):
-        raise ValueError(f"wedge={wedge!r} does not match the tree: query a tree with the "
-                         "wedge it was built with")
+    tree.check_wedge(wedge)
     if stack_size > MAX_STACK:
         raise ValueError(f"stack_size {stack_size} > the kernel's MAX_STACK {MAX_STACK}")
     if fma is None:

@@ -734,10 +734,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     """
     if schedule not in SCHEDULES:
         raise ValueError(f"schedule must be one of {SCHEDULES}; got {schedule!r}")
-    if (wedge == "signed") != (tree.wedge_lo is not None):
-        raise ValueError(f"PSV query: wedge={wedge!r} does not match the tree (built with "
-                         f"{'a signed' if tree.wedge_lo is not None else 'a symmetric'} "
-                         "wedge): query a tree with the wedge it was built with")
+    tree.check_wedge(wedge)
     timer = timer if timer is not None else StageTimer()
     dt = tree.plane.dtype.type
     s_count = points.shape[0]

@@ -181,6 +181,14 @@ class TopTree:
             out.append("root")
         return out
 
+    def check_wedge(self, wedge: str) -> None:
+        """Raise ValueError unless a query's ``wedge`` mode reads this tree's wedge field
+        as built: a signed tree holds packed intervals, the others a plain bound."""
+        if (wedge == "signed") != (self.wedge_lo is not None):
+            raise ValueError(f"PSV query: wedge={wedge!r} does not match the tree (built with "
+                             f"{'a signed' if self.wedge_lo is not None else 'a symmetric'} "
+                             "wedge): query a tree with the wedge it was built with")
+
     def renumbered(self, volumes: np.ndarray) -> "TopTree":
         """The same tree with shadow volume ``volumes[i]`` renumbered ``i``.
 
