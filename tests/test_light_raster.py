@@ -261,10 +261,10 @@ def test_jax_raster_equals_the_numpy_enumeration(kind):
     setups = [lr.setup_face(f, tri) for f in cam.faces]
     keys = np.arange(0, R * R, 3)
     select = [np.arange(len(tri)) % 4 != 1]
-    t, slot = lr.candidates(setups, keys, R, select=select)
-    col, row = keys[slot] % R, keys[slot] // R
-    lo, hi, centre = lr.depth_range(setups[0].depth[t], col, row)
     for mode in ("standard", "inner", "outer"):
+        t, slot = lr.candidates(setups, keys, R, select, mode, "corners", 1e-3)
+        col, row = keys[slot] % R, keys[slot] // R
+        lo, hi, centre = lr.depth_range(setups[0].depth[t], col, row)
         with lr.x64():
             fr = lr.raster(setups, keys, R, mode, "corners", 1e-3, select=select)
             assert fr.candidates == len(t)
@@ -332,3 +332,122 @@ def test_setup_face_equals_a_per_triangle_loop(kind):
             nz = s.norms[t] > 0
             np.testing.assert_allclose(s.unit[t][nz], s.edges[t][nz] / s.norms[t][nz, None],
                                        rtol=1e-15)
+
+
+def _sliver_frame(kind, seed):
+    """Thin triangles spanning many rows at every slope (steep, diagonal, almost
+    horizontal: edge coefficients a of about 1e-9 and 1e-15 texels), fans of triangles
+    sharing edges, and, in perspective, triangles reaching behind the light."""
+    cam, tri = _frame(kind, seed)
+    rng = np.random.default_rng(seed + 100)
+    base = rng.uniform(-1, 1, (40, 3))
+    ang = rng.uniform(0, np.pi, 40)
+    ang[:4] = [0.0, 1e-9, 1e-15, np.pi / 2]
+    d = np.stack([np.cos(ang), 0.0 * ang, np.sin(ang)], 1) * 3.0
+    side = np.stack([-np.sin(ang), 0.0 * ang, np.cos(ang)], 1) * rng.uniform(1e-4, 0.05, (40, 1))
+    sliver = np.stack([base, base + side, base + d], 1)
+    return cam, np.concatenate([tri, sliver, tri[:6] * 1.5])
+
+
+@pytest.mark.parametrize("kind", ["ortho", "persp"])
+@pytest.mark.parametrize("min_columns", [1, 4])
+def test_row_spans_keep_every_covered_fragment(kind, precision, min_columns, monkeypatch):
+    """Candidates narrowed to each row's passing columns (row_spans; every box narrowed,
+    or the boxes at least 4 texels wide) hold every fragment the coverage test accepts
+    among the whole box's candidates, in every mode, for the evaluation dtype's rounding;
+    and they cut the slivers' boxes. Boxes narrower than the threshold are whole."""
+    monkeypatch.setattr(lr, "NARROW_MIN_COLUMNS", min_columns)
+    dtype = np.float64 if precision == "float64" else np.float32
+    eps = float(np.finfo(dtype).eps)
+    for seed in (11, 12):
+        cam, tri = _sliver_frame(kind, seed)
+        slivers = set(range(30, 70))
+        setups = [lr.setup_face(f, tri) for f in cam.faces]
+        keys = np.arange(R * R)
+        t_box, slot_box = lr.candidates(setups, keys, R)
+        box_pairs = set(zip(t_box.tolist(), slot_box.tolist()))
+        for mode, test, tau in [("standard", "corners", 0.0), ("inner", "corners", 1e-3),
+                                ("inner", "circle", 0.0), ("outer", "corners", 1e-3),
+                                ("outer", "corners", 0.0), ("outer", "corners", 0.7)]:
+            col, row = keys[slot_box] % R, keys[slot_box] // R
+            cov = lr.coverage(setups[0].unit[t_box].astype(dtype), None, col, row, mode,
+                              test, tau)
+            t, slot = lr.candidates(setups, keys, R, None, mode, test, tau, eps)
+            narrowed = set(zip(t.tolist(), slot.tolist()))
+            covered = set(zip(t_box[cov].tolist(), slot_box[cov].tolist()))
+            assert covered <= narrowed <= box_pairs, (mode, test, tau)
+            assert len(covered) > 10
+            n_box = sum(p[0] in slivers for p in box_pairs)
+            n_cut = sum(p[0] in slivers for p in narrowed)
+            assert n_cut < (0.9 if tau > 0.5 else 0.7) * n_box, (mode, test, tau, n_cut, n_box)
+            width = setups[0].bbox[:, 1] - setups[0].bbox[:, 0] + 1
+            small = set(np.flatnonzero(width < min_columns).tolist())
+            assert ({p for p in narrowed if p[0] in small}
+                    == {p for p in box_pairs if p[0] in small})
+        monkeypatch.setattr(lr, "NARROW_MIN_COLUMNS", R + 1)
+        t, slot = lr.candidates(setups, keys, R, None, "inner", "corners", 1e-3, eps)
+        assert np.array_equal(t, t_box) and np.array_equal(slot, slot_box)
+        monkeypatch.setattr(lr, "NARROW_MIN_COLUMNS", min_columns)
+
+
+def test_row_spans_on_hand_made_rows():
+    """One binding edge per case, in unit rows (a, b, c): the passing columns of a row
+    are an interval widened by one column (the coverage test decides inside it); an
+    edge with a = 0 (an edge at infinity too) bounds no column; a tiny slope widens the
+    bound by its rounding instead of cutting the row."""
+    box = np.array([[0, 15, 0, 15]])
+    owner, row = np.array([0]), np.array([4])
+
+    def span(edge, mode="standard", tau=0.0):
+        unit = np.zeros((1, 3, 3))
+        unit[0, :, 2] = np.inf                      # two edges that never bind
+        unit[0, 0] = edge
+        lo, hi = lr.row_spans(unit, box, owner, row, mode, "corners", tau)
+        return int(lo[0]), int(hi[0])
+
+    # u - 5.2 >= 0 at the centre u = col + 0.5: col >= 4.7, so 5.. (4 after widening)
+    assert span((1.0, 0.0, -5.2)) == (4, 15)
+    # -u + 9.0 >= 0: col <= 8.5, so ..8 (9 after widening)
+    assert span((-1.0, 0.0, 9.0)) == (0, 9)
+    # a sloped edge: u + v - 10 >= 0 at v = 4.5: col >= 5, so 4..
+    assert span((0.5 ** 0.5, 0.5 ** 0.5, -10 * 0.5 ** 0.5)) == (4, 15)
+    # outer: a corner within tau = 0.5 of the inside: col >= 4.7 - 0.5 - 0.5, so 3..
+    assert span((1.0, 0.0, -5.2), "outer", 0.5) == (3, 15)
+    # inner corners: every corner tau = 0.5 inside: col >= 4.7 + 0.5 + 0.5, so 5..
+    assert span((1.0, 0.0, -5.2), "inner", 0.5) == (5, 15)
+    for edge in ((0.0, 1.0, -6.0), (0.0, 1.0, -3.0), (0.0, 0.0, -np.inf), (0.0, 0.0, np.inf)):
+        assert span(edge) == (0, 15)
+    assert span((1e-15, 1.0, -4.5)) == (0, 15)
+    # the box clamps, and a row with no passing column has lo > hi
+    lo, hi = span((1.0, 0.0, -40.0))
+    assert lo > hi and lo <= 16
+
+
+@pytest.mark.parametrize("size", [1, 64, 1000, 4096, 70001])
+def test_key_rank_equals_searchsorted(size):
+    """KeyRank (bitmap and per-word counts) gives np.searchsorted's indices for every
+    texel key from 0 to size, for empty, sparse, dense and word-aligned key sets."""
+    rng = np.random.default_rng(size)
+    for n in (0, 1, size // 7, size):
+        keys = np.sort(rng.choice(size, n, replace=False)).astype(np.int64)
+        x = np.arange(size + 1)
+        got = lr.KeyRank(keys, size)(x)
+        assert np.array_equal(got, np.searchsorted(keys, x)), n
+
+
+def test_row_segments_with_and_without_the_rank_table(monkeypatch):
+    """The count pass gives the same segments from the rank table as from binary
+    searches (the fallback for NumPy without bitwise_count), over sparse keys, a triangle
+    selection and narrowed rows."""
+    cam, tri = _sliver_frame("persp", 13)
+    setups = [lr.setup_face(f, tri) for f in cam.faces]
+    keys = np.flatnonzero(np.random.default_rng(3).random(R * R) < 0.4)
+    select = [np.arange(len(tri)) % 5 != 2]
+    for mode in (None, "outer", "inner"):
+        with_table = lr.row_segments(setups, keys, R, select, mode, "corners", 1e-3)
+        monkeypatch.setattr(lr, "key_rank", lambda keys, size: None)
+        searched = lr.row_segments(setups, keys, R, select, mode, "corners", 1e-3)
+        monkeypatch.undo()
+        assert len(with_table[0]) > 50
+        for a, b in zip(with_table, searched):
+            assert np.array_equal(a, b), mode

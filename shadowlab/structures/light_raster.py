@@ -31,8 +31,10 @@ corners, which is how conservative depths are bounded.
 **Fragments over a set of texels.** Work is enumerated only over a sorted set of texel
 keys ``face * R * R + row * R + column`` (all texels for a dense raster, or the texels
 holding view samples for the shadow map and IZB): per triangle, its texel bounding box
-row by row, and the keys of each row inside the box found by binary search. Counts are
-exact before any array is allocated; nothing is truncated.
+row by row, and the keys of each row inside the box, or for a wide box inside the
+columns of the row that can pass the coverage test (:func:`row_spans`), found by rank
+(:class:`KeyRank`). Counts are exact before any array is allocated; nothing is
+truncated.
 
 Distances to edges are measured in texels. A margin ``tau`` (texels) makes the inner
 test stricter and the outer test looser; ``rounding_margin`` sizes it from the data.
@@ -62,6 +64,7 @@ INNER_TESTS = ("corners", "circle")
 #: corner offsets of a texel relative to its lower corner (column, row)
 CORNERS = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0))
 HALF_DIAGONAL = math.sqrt(0.5)
+EPS64 = float(np.finfo(np.float64).eps)
 
 
 def homogeneous_matrix(face: LightFace) -> np.ndarray:
@@ -227,9 +230,13 @@ def texel_keys(face: np.ndarray, uv: np.ndarray, resolution: int) -> np.ndarray:
 
 
 def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
-                 select: list[np.ndarray] | None = None):
+                 select: list[np.ndarray] | None = None, mode: str | None = None,
+                 inner_test: str = "corners", tau: float = 0.0, eps: float = EPS64):
     """The counting pass of the rasterizer: per (triangle, row of its box) on each face,
-    the run of ``keys`` inside the row's box (found by binary search).
+    the run of ``keys`` inside the row's columns (found by :class:`KeyRank`, or by binary
+    search without NumPy's ``bitwise_count``): the box's columns, or with a ``mode`` for
+    a box at least ``NARROW_MIN_COLUMNS`` wide only those that can pass the mode's
+    coverage test (:func:`row_spans`).
 
     Args: as :func:`candidates`.
     Returns:
@@ -239,35 +246,163 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
     """
     r = int(resolution)
     out = []
+    per_face = []
     for f, st in enumerate(setups):
         b = st.bbox
         use = (b[:, 0] <= b[:, 1]) & (b[:, 2] <= b[:, 3])
         if select is not None:
             use &= select[f]
         t = np.flatnonzero(use)
-        nrows = b[t, 3] - b[t, 2] + 1
+        per_face.append((t, b[t, 3] - b[t, 2] + 1))
+    rank = key_rank(keys, len(setups) * r * r)
+    for f, st in enumerate(setups):
+        b = st.bbox
+        t, nrows = per_face[f]
         rt = np.repeat(t, nrows)
         row = b[rt, 2] + run_offsets(nrows)
+        col0, col1 = b[rt, 0], b[rt, 1]
+        if mode is not None:
+            wide = b[t, 1] - b[t, 0] + 1 >= NARROW_MIN_COLUMNS
+            if wide.any():
+                rows_of_wide = np.repeat(wide, nrows)
+                tw = t[wide]
+                col0[rows_of_wide], col1[rows_of_wide] = row_spans(
+                    st.unit[tw], b[tw], np.repeat(np.arange(len(tw)), nrows[wide]),
+                    row[rows_of_wide], mode, inner_test, tau, eps)
         base = (f * r + row) * r
-        lo = np.searchsorted(keys, base + b[rt, 0], side="left")
-        hi = np.searchsorted(keys, base + b[rt, 1], side="right")
+        if rank is None:
+            lo = np.searchsorted(keys, base + col0, side="left")
+            hi = np.searchsorted(keys, base + col1, side="right")
+        else:           # the same indices: the number of keys below each end
+            lo = rank(base + col0)
+            hi = rank(base + col1 + 1)
         keep = hi > lo
         out.append((np.full(int(keep.sum()), f), rt[keep], lo[keep], (hi - lo)[keep]))
     return tuple(np.concatenate([o[i] for o in out]).astype(np.int64) for i in range(4))
 
 
+class KeyRank:
+    """The number of sorted unique texel ``keys`` [K] (in [0, size)) below any texel key,
+    from a bitmap of the keys (one bit per texel) and the count of keys before each
+    64-bit word: ``rank(x) = before[x >> 6] + popcount(word[x >> 6] & (2^(x & 63) - 1))``.
+    The same indices as ``np.searchsorted(keys, x)``, in a few elementwise passes
+    instead of a binary search per lookup (the two searches of each of the 7.4 M rows of
+    1M casters on an 8192 x 8192 map: 2 x 270 ms; ranks 2 x 135 ms); 0.19 bytes per
+    texel."""
+
+    def __init__(self, keys: np.ndarray, size: int):
+        keys = np.asarray(keys, np.int64)
+        n_words = size // 64 + 1                    # lookups go up to x = size
+        word_of = keys >> 6
+        bits = np.left_shift(np.uint64(1), (keys & 63).astype(np.uint64))
+        self.words = np.zeros(n_words, np.uint64)
+        if len(keys):
+            first = np.flatnonzero(np.diff(word_of, prepend=-1))
+            self.words[word_of[first]] = np.bitwise_or.reduceat(bits, first)
+        self.before = np.zeros(n_words, np.int64)
+        np.cumsum(np.bincount(word_of, minlength=n_words)[:-1], out=self.before[1:])
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """int64 [N]: the number of keys < x, for int64 x [N] in [0, size]."""
+        w = x >> 6
+        below = np.left_shift(np.uint64(1), (x & 63).astype(np.uint64)) - np.uint64(1)
+        return self.before[w] + np.bitwise_count(self.words[w] & below)
+
+
+def key_rank(keys: np.ndarray, size: int) -> KeyRank | None:
+    """A :class:`KeyRank` of the keys, or None (binary searches instead) where NumPy has
+    no ``bitwise_count`` (before 2.0)."""
+    return KeyRank(keys, size) if hasattr(np, "bitwise_count") else None
+
+
+#: boxes narrower than this are enumerated whole: narrowing costs about 80 ns per row
+#: (NumPy), and a row of a small triangle's box has few columns to drop (docs/shadow_map.md,
+#: "Row spans")
+NARROW_MIN_COLUMNS = 16
+#: fragment capacities per octave (:func:`core.capacity.bucket`): 2 keeps the padding the
+#: fill and the IZB's tracing process below 41 % (a power of two: up to 100 %), so that
+#: fewer candidates mean less work, at twice the compiled sizes of powers of two
+FRAGMENT_BUCKET_STEPS = 2
+
+
+def row_spans(unit: np.ndarray, box: np.ndarray, owner: np.ndarray, row: np.ndarray,
+              mode: str, inner_test: str = "corners", tau: float = 0.0, eps: float = EPS64
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The columns of each row of a triangle's box that can pass ``mode``'s coverage test.
+
+    At a fixed row every edge's test (:func:`coverage_terms`) is affine in the column,
+    ``a col + K(row) >= 0``, so the passing columns of a row form one interval: a lower
+    bound from each edge with a > 0, an upper one from each edge with a < 0 (an edge
+    with a = 0 bounds no column). Each bound, ``alpha + beta row`` per triangle and edge,
+    is widened by the rounding of both this evaluation and the coverage test's
+    (relative ``eps``, the evaluation dtype's, times the magnitude of the terms over the
+    box, in columns) and then by one more column, so the interval holds every column
+    the test can accept and the test still decides each fragment. Thin triangles across
+    many rows (fur strands) cover few of their box's texels: the raster then fills and
+    tests only those.
+
+    Args:
+        unit: float64 [T, 3, 3] the triangles' unit edge rows (``FaceSetup.unit``);
+        box: int64 [T, 4] their texel boxes (col0, col1, row0, row1);
+        owner: int [M] the triangle of each row; row: int [M] rows inside its box;
+        tau: scalar margin (texels); eps: the coverage test's relative rounding.
+    Returns:
+        (lo, hi) int64 [M] within [col0 - 1, col1 + 1] of the row's box; lo > hi for a
+        row with no passing column.
+    """
+    s, sign_tau, const = coverage_terms(mode, inner_test)
+    thr = const + sign_tau * float(tau)
+    col0, col1 = box[:, 0].astype(np.float64), box[:, 1].astype(np.float64)
+    width = max(abs(float(tau)), 1.0) + HALF_DIAGONAL
+    v_max = box[:, 3].astype(np.float64) + 1.5
+    lo_t, hi_t = [], []             # per edge: (alpha, beta) [T] of the bound on columns
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for i in range(3):
+            a, b, c = unit[:, i, 0], unit[:, i, 1], unit[:, i, 2]
+            half = 0.5 * (np.abs(a) + np.abs(b))
+            safe = np.where(a != 0, a, 1.0)
+            # the test at column col, row y: a col + k0 + b y >= 0
+            k0 = (0.5 * a + 0.5 * b + c) + (s * half - thr)
+            alpha, beta = -k0 / safe, -b / safe
+            # magnitude of every term either evaluation sums, over the box
+            size = (np.abs(a) * (np.abs(col1) + 2.0) + np.abs(b) * v_max + np.abs(c) + half
+                    + width)
+            slack = 16.0 * eps * size / np.abs(safe) + 1.0
+            ok = np.isfinite(alpha) & np.isfinite(beta) & np.isfinite(slack)
+            lo_t.append((np.where(ok & (a > 0), alpha - slack, -np.inf),
+                         np.where(ok & (a > 0), beta, 0.0)))
+            hi_t.append((np.where(ok & (a < 0), alpha + slack, np.inf),
+                         np.where(ok & (a < 0), beta, 0.0)))
+    y = row.astype(np.float64)
+    lo = col0[owner]
+    hi = col1[owner]
+    for (la, lb), (ha, hb) in zip(lo_t, hi_t):
+        lo = np.maximum(lo, np.ceil(la[owner] + lb[owner] * y))
+        hi = np.minimum(hi, np.floor(ha[owner] + hb[owner] * y))
+    lo = np.minimum(lo, col1[owner] + 1)
+    hi = np.maximum(hi, col0[owner] - 1)
+    return lo.astype(np.int64), hi.astype(np.int64)
+
+
 def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
-               select: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(triangle, key index) pairs whose texel is in a triangle's box (NumPy).
+               select: list[np.ndarray] | None = None, mode: str | None = None,
+               inner_test: str = "corners", tau: float = 0.0, eps: float = EPS64
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(triangle, key index) pairs whose texel is in a triangle's box (NumPy), and with a
+    ``mode`` only in the columns of each row that can pass its coverage test
+    (:func:`row_spans`).
 
     Args:
         setups: one :class:`FaceSetup` per face (face f's keys start at f R R).
         keys: int64 [K] sorted unique texel keys to rasterize over.
         select: optional per-face bool [T] triangles to draw (default all).
+        mode, inner_test, tau: the coverage test the candidates are for (None: every
+            texel of the box); eps: the relative rounding of its evaluation dtype.
     Returns:
         tri int64 [F], slot int64 [F] (index into ``keys``), sorted by face, triangle.
     """
-    _, tri, first, count = row_segments(setups, keys, resolution, select)
+    _, tri, first, count = row_segments(setups, keys, resolution, select, mode, inner_test,
+                                        tau, eps)
     return np.repeat(tri, count), np.repeat(first, count) + run_offsets(count)
 
 
@@ -348,10 +483,13 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
 
     Two phases: the exact candidate count (:func:`row_segments`, NumPy), then the fill,
     coverage and depth range of every candidate under ``jax.jit`` at a static capacity
-    (powers of two: the candidates, the segments, the keys and the triangles are padded,
-    so shapes repeat across frames; nothing is truncated). Call inside :func:`x64`.
+    (the candidates padded to one of ``FRAGMENT_BUCKET_STEPS`` sizes per octave, the
+    segments, the keys and the triangles to powers of two, so shapes repeat across
+    frames; nothing is truncated). Call inside :func:`x64`.
     """
-    face, tri, first, count = row_segments(setups, keys, resolution, select)
+    # the coverage test runs in float64 (x64)
+    face, tri, first, count = row_segments(setups, keys, resolution, select, mode,
+                                           inner_test, tau, EPS64)
     t_cap = bucket(max(len(s.unit) for s in setups), minimum=16)
     unit = np.zeros((len(setups) * t_cap, 3, 3))
     depth = np.zeros((len(setups) * t_cap, 3))
@@ -367,7 +505,8 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
         jnp.asarray(pad(face * t_cap + tri, m_cap)), jnp.asarray(pad(first, m_cap)),
         jnp.asarray(pad(count, m_cap)), jnp.asarray(pad(keys, bucket(len(keys)))),
         jnp.asarray(unit), jnp.asarray(depth), jnp.asarray(tau, jnp.float64),
-        capacity=bucket(total), resolution=int(resolution), mode=mode, inner_test=inner_test,
+        capacity=bucket(total, steps=FRAGMENT_BUCKET_STEPS), resolution=int(resolution),
+        mode=mode, inner_test=inner_test,
         t_cap=t_cap)
     return Fragments(*out, candidates=total)
 
@@ -405,15 +544,30 @@ def coverage(edges, norms, col, row, mode: str, inner_test: str = "corners", tau
     if mode == "standard":
         top_left = (a > 0) | ((a == 0) & (b > 0))
         return xp.all((centre > 0) | ((centre == 0) & top_left), axis=-1)
+    s, sign_tau, const = coverage_terms(mode, inner_test)
     tau = xp.asarray(tau, dtype=edges.dtype)
     tau = tau[:, None] if tau.ndim == 1 else tau
     half = 0.5 * (xp.abs(a) + xp.abs(b))
+    if s:
+        centre = centre + half if s > 0 else centre - half
+    thr = const + tau if sign_tau > 0 else -tau
+    return xp.all(_distance(centre, norms, xp) >= thr, axis=-1)
+
+
+def coverage_terms(mode: str, inner_test: str = "corners") -> tuple[int, int, float]:
+    """(s, sign_tau, const): ``mode``'s coverage test passes where, for every edge, the
+    signed distance (texels) of ``centre + s * half`` is at least ``const + sign_tau *
+    tau`` (``centre`` the edge function at the texel centre, ``half`` its half range over
+    the square). For "standard" (centre inside, top-left ties) the terms of the test
+    with ties included, which passes a superset of its texels."""
+    if mode == "outer":
+        return 1, -1, 0.0           # some corner within tau of the inside
     if mode == "inner":
         if inner_test == "corners":
-            return xp.all(_distance(centre - half, norms, xp) >= tau, axis=-1)
-        return xp.all(_distance(centre, norms, xp) >= HALF_DIAGONAL + tau, axis=-1)
-    if mode == "outer":
-        return xp.all(_distance(centre + half, norms, xp) >= -tau, axis=-1)
+            return -1, 1, 0.0       # every corner tau inside
+        return 0, 1, HALF_DIAGONAL  # the circumscribed circle tau inside
+    if mode == "standard":
+        return 0, 1, 0.0
     raise ValueError(f"light raster mode must be one of {MODES}, got {mode!r}")
 
 
@@ -462,7 +616,8 @@ def rasterize(camera: LightCamera, triangles: np.ndarray, mode: str,
     if keys is None:
         keys = np.arange(len(camera.faces) * r * r, dtype=np.int64)
     setups = [setup_face(f, triangles) for f in camera.faces]
-    tri, slot = candidates(setups, keys, r)
+    tri, slot = candidates(setups, keys, r, None, mode, inner_test, tau,
+                           float(np.finfo(dtype).eps))
     key = keys[slot]
     face = key // (r * r)
     col, row = key % r, (key // r) % r
