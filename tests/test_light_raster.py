@@ -253,16 +253,21 @@ def test_top_left_rule_covers_a_shared_edge_centre_once():
 
 
 @pytest.mark.parametrize("kind", ["ortho", "persp"])
-def test_jax_raster_equals_the_numpy_enumeration(kind):
+def test_jax_raster_equals_the_numpy_enumeration(kind, monkeypatch):
     """The count-then-fill raster (JAX, padded capacities) yields exactly the candidates of
     the NumPy enumeration, with its coverage and depth range, over a sparse key set and a
-    triangle selection."""
+    triangle selection, with every box narrowed to its rows' spans; its covered fragments
+    are those of the whole boxes. Outside ``x64()`` it refuses to run."""
     cam, tri = _frame(kind, 8)
     setups = [lr.setup_face(f, tri) for f in cam.faces]
     keys = np.arange(0, R * R, 3)
     select = [np.arange(len(tri)) % 4 != 1]
+    monkeypatch.setattr(lr, "NARROW_MIN_COLUMNS", 1)          # every box narrowed
+    t_box, slot_box = lr.candidates(setups, keys, R, select)
     for mode in ("standard", "inner", "outer"):
         t, slot = lr.candidates(setups, keys, R, select, mode, "corners", 1e-3)
+        box_cov = lr.coverage(setups[0].unit[t_box], None, keys[slot_box] % R,
+                              keys[slot_box] // R, mode, tau=1e-3)
         col, row = keys[slot] % R, keys[slot] // R
         lo, hi, centre = lr.depth_range(setups[0].depth[t], col, row)
         with lr.x64():
@@ -274,8 +279,14 @@ def test_jax_raster_equals_the_numpy_enumeration(kind):
             assert np.array_equal(np.asarray(fr.slot)[:n], slot)
             cov = lr.coverage(setups[0].unit[t], None, col, row, mode, tau=1e-3)
             assert np.array_equal(np.asarray(fr.covered)[:n], cov)
+            # the covered fragments are the whole boxes' ones, in the same order
+            assert np.array_equal(np.asarray(fr.tri)[:n][cov], t_box[box_cov])
+            assert np.array_equal(np.asarray(fr.slot)[:n][cov], slot_box[box_cov])
+            assert n < len(t_box)
             for got, want in ((fr.lo, lo), (fr.hi, hi), (fr.centre, centre)):
                 np.testing.assert_allclose(np.asarray(got)[:n], want, rtol=1e-12, atol=1e-12)
+    with pytest.raises(RuntimeError, match="x64"):
+        lr.raster(setups, keys, R, "outer", "corners", 1e-3)
 
 
 @pytest.mark.parametrize("n,size", [(0, 16), (7, 6 * 16 * 16), (500, 64), (500, 2000)])
@@ -366,7 +377,8 @@ def test_row_spans_keep_every_covered_fragment(kind, precision, min_columns, mon
         keys = np.arange(R * R)
         t_box, slot_box = lr.candidates(setups, keys, R)
         box_pairs = set(zip(t_box.tolist(), slot_box.tolist()))
-        for mode, test, tau in [("standard", "corners", 0.0), ("inner", "corners", 1e-3),
+        for mode, test, tau in [("standard", "corners", 0.0), ("standard", "corners", 0.3),
+                                ("inner", "corners", 1e-3),
                                 ("inner", "circle", 0.0), ("outer", "corners", 1e-3),
                                 ("outer", "corners", 0.0), ("outer", "corners", 0.7)]:
             col, row = keys[slot_box] % R, keys[slot_box] // R
@@ -415,6 +427,8 @@ def test_row_spans_on_hand_made_rows():
     assert span((1.0, 0.0, -5.2), "outer", 0.5) == (3, 15)
     # inner corners: every corner tau = 0.5 inside: col >= 4.7 + 0.5 + 0.5, so 5..
     assert span((1.0, 0.0, -5.2), "inner", 0.5) == (5, 15)
+    # standard has no margin: tau changes nothing
+    assert span((1.0, 0.0, -5.2), "standard", 5.0) == (4, 15)
     for edge in ((0.0, 1.0, -6.0), (0.0, 1.0, -3.0), (0.0, 0.0, -np.inf), (0.0, 0.0, np.inf)):
         assert span(edge) == (0, 15)
     assert span((1e-15, 1.0, -4.5)) == (0, 15)

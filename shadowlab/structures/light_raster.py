@@ -287,7 +287,7 @@ class KeyRank:
     64-bit word: ``rank(x) = before[x >> 6] + popcount(word[x >> 6] & (2^(x & 63) - 1))``.
     The same indices as ``np.searchsorted(keys, x)``, in a few elementwise passes
     instead of a binary search per lookup (the two searches of each of the 7.4 M rows of
-    1M casters on an 8192 x 8192 map: 2 x 270 ms; ranks 2 x 135 ms); 0.19 bytes per
+    1M casters on an 8192 x 8192 map: 2 x 270 ms; ranks 2 x 135 ms); 0.25 bytes per
     texel."""
 
     def __init__(self, keys: np.ndarray, size: int):
@@ -319,9 +319,9 @@ def key_rank(keys: np.ndarray, size: int) -> KeyRank | None:
 #: (NumPy), and a row of a small triangle's box has few columns to drop (docs/shadow_map.md,
 #: "Row spans")
 NARROW_MIN_COLUMNS = 16
-#: fragment capacities per octave (:func:`core.capacity.bucket`): 2 keeps the padding the
-#: fill and the IZB's tracing process below 41 % (a power of two: up to 100 %), so that
-#: fewer candidates mean less work, at twice the compiled sizes of powers of two
+#: fragment capacities per octave (:func:`core.capacity.bucket`): with 2 a capacity is at
+#: most 1.5x the candidates (a power of two: up to 2x), and the fill and the IZB's tracing
+#: process the padding too, so fewer candidates mean less work; twice the compiled sizes
 FRAGMENT_BUCKET_STEPS = 2
 
 
@@ -487,7 +487,10 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
     segments, the keys and the triangles to powers of two, so shapes repeat across
     frames; nothing is truncated). Call inside :func:`x64`.
     """
-    # the coverage test runs in float64 (x64)
+    if not jax.config.jax_enable_x64:
+        # the spans' rounding slack is sized for the float64 test
+        raise RuntimeError("light_raster.raster runs inside light_raster.x64() (its fill "
+                           "and coverage test are float64)")
     face, tri, first, count = row_segments(setups, keys, resolution, select, mode,
                                            inner_test, tau, EPS64)
     t_cap = bucket(max(len(s.unit) for s in setups), minimum=16)
@@ -550,7 +553,7 @@ def coverage(edges, norms, col, row, mode: str, inner_test: str = "corners", tau
     half = 0.5 * (xp.abs(a) + xp.abs(b))
     if s:
         centre = centre + half if s > 0 else centre - half
-    thr = const + tau if sign_tau > 0 else -tau
+    thr = -tau if sign_tau < 0 else const + tau      # inner and outer: sign_tau != 0
     return xp.all(_distance(centre, norms, xp) >= thr, axis=-1)
 
 
@@ -558,8 +561,8 @@ def coverage_terms(mode: str, inner_test: str = "corners") -> tuple[int, int, fl
     """(s, sign_tau, const): ``mode``'s coverage test passes where, for every edge, the
     signed distance (texels) of ``centre + s * half`` is at least ``const + sign_tau *
     tau`` (``centre`` the edge function at the texel centre, ``half`` its half range over
-    the square). For "standard" (centre inside, top-left ties) the terms of the test
-    with ties included, which passes a superset of its texels."""
+    the square). For "standard" (centre inside, top-left ties; no margin) the terms of
+    the test with ties included and tau ignored, which passes a superset of its texels."""
     if mode == "outer":
         return 1, -1, 0.0           # some corner within tau of the inside
     if mode == "inner":
@@ -567,7 +570,7 @@ def coverage_terms(mode: str, inner_test: str = "corners") -> tuple[int, int, fl
             return -1, 1, 0.0       # every corner tau inside
         return 0, 1, HALF_DIAGONAL  # the circumscribed circle tau inside
     if mode == "standard":
-        return 0, 1, 0.0
+        return 0, 0, 0.0
     raise ValueError(f"light raster mode must be one of {MODES}, got {mode!r}")
 
 
