@@ -451,7 +451,7 @@ def test_key_rank_equals_searchsorted(size):
 
 def test_row_segments_with_and_without_the_rank_table(monkeypatch):
     """The count pass gives the same segments from the rank table as from binary
-    searches (the fallback for NumPy without bitwise_count), over sparse keys, a triangle
+    searches (the former lookup), over sparse keys, a triangle
     selection and narrowed rows."""
     cam, tri = _sliver_frame("persp", 13)
     setups = [lr.setup_face(f, tri) for f in cam.faces]

@@ -40,8 +40,9 @@ Distances to edges are measured in texels. A margin ``tau`` (texels) makes the i
 test stricter and the outer test looser; ``rounding_margin`` sizes it from the data.
 Everything here is float64 NumPy set-up plus elementwise evaluation that runs in NumPy or
 under ``jax.jit`` (``xp``) in the dtype of its inputs. The methods rasterize with
-:func:`raster`: the exact count in NumPy (:func:`row_segments`), then one jit-compiled
-fill at power-of-two capacities (float64, :func:`x64`).
+:func:`raster`: the exact count (:func:`row_segments`: NumPy bookkeeping with jitted
+per-row passes for the spans and the key ranks), then one jit-compiled
+fill at static capacities (float64, :func:`x64`).
 """
 
 from __future__ import annotations
@@ -233,8 +234,8 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
                  select: list[np.ndarray] | None = None, mode: str | None = None,
                  inner_test: str = "corners", tau: float = 0.0, eps: float = EPS64):
     """The counting pass of the rasterizer: per (triangle, row of its box) on each face,
-    the run of ``keys`` inside the row's columns (found by :class:`KeyRank`, or by binary
-    search without NumPy's ``bitwise_count``): the box's columns, or with a ``mode`` for
+    the run of ``keys`` inside the row's columns (found by :class:`KeyRank`): the box's
+    columns, or with a ``mode`` for
     a box at least ``NARROW_MIN_COLUMNS`` wide only those that can pass the mode's
     coverage test (:func:`row_spans`).
 
@@ -274,8 +275,7 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
             lo = np.searchsorted(keys, base + col0, side="left")
             hi = np.searchsorted(keys, base + col1, side="right")
         else:           # the same indices: the number of keys below each end
-            lo = rank(base + col0)
-            hi = rank(base + col1 + 1)
+            lo, hi = rank(base + col0, base + col1 + 1)
         keep = hi > lo
         out.append((np.full(int(keep.sum()), f), rt[keep], lo[keep], (hi - lo)[keep]))
     return tuple(np.concatenate([o[i] for o in out]).astype(np.int64) for i in range(4))
@@ -302,22 +302,41 @@ class KeyRank:
         self.before = np.zeros(n_words, np.int64)
         np.cumsum(np.bincount(word_of, minlength=n_words)[:-1], out=self.before[1:])
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        """int64 [N]: the number of keys < x, for int64 x [N] in [0, size]."""
+    def __call__(self, *xs: np.ndarray) -> tuple[np.ndarray, ...] | np.ndarray:
+        """int64 [N] per argument: the number of keys < x, for int64 x [N] in [0, size]
+        (one jitted pass, float64/int64 under :func:`x64`)."""
+        n = len(xs[0])
+        cap = bucket(n, minimum=1024)
+        with x64():
+            if not hasattr(self, "_device"):
+                self._device = (jnp.asarray(self.words), jnp.asarray(self.before))
+            out = _rank(*self._device, tuple(jnp.asarray(pad(x, cap, dtype=np.int64))
+                                             for x in xs))
+            out = tuple(np.asarray(r)[:n] for r in out)
+        return out if len(xs) > 1 else out[0]
+
+
+@jax.jit
+def _rank(words, before, xs):
+    def one(x):
         w = x >> 6
-        below = np.left_shift(np.uint64(1), (x & 63).astype(np.uint64)) - np.uint64(1)
-        return self.before[w] + np.bitwise_count(self.words[w] & below)
+        below = jnp.left_shift(jnp.uint64(1), (x & 63).astype(jnp.uint64)) - jnp.uint64(1)
+        return (before.at[w].get(mode="promise_in_bounds")
+                + jax.lax.population_count(words.at[w].get(mode="promise_in_bounds")
+                                           & below).astype(jnp.int64))
+    return tuple(one(x) for x in xs)
 
 
 def key_rank(keys: np.ndarray, size: int) -> KeyRank | None:
-    """A :class:`KeyRank` of the keys, or None (binary searches instead) where NumPy has
-    no ``bitwise_count`` (before 2.0)."""
-    return KeyRank(keys, size) if hasattr(np, "bitwise_count") else None
+    """The row-run lookup of :func:`row_segments`: a :class:`KeyRank` of the sorted unique
+    ``keys`` in [0, size). (None selects binary searches, the former lookup, which the
+    tests and ``docs/repro/raster_spans_ab.py`` compare with.)"""
+    return KeyRank(keys, size)
 
 
-#: boxes narrower than this are enumerated whole: narrowing costs about 80 ns per row
-#: (NumPy), and a row of a small triangle's box has few columns to drop (docs/shadow_map.md,
-#: "Row spans")
+#: boxes narrower than this are enumerated whole: a row of a small triangle's box has
+#: few columns to drop (chosen when narrowing cost about 80 ns per row in NumPy;
+#: docs/shadow_map.md, "Row spans")
 NARROW_MIN_COLUMNS = 16
 #: fragment capacities per octave (:func:`core.capacity.bucket`): with 2 a capacity is at
 #: most 1.5x the candidates (a power of two: up to 2x), and the fill and the IZB's tracing
@@ -373,22 +392,40 @@ def row_spans(unit: np.ndarray, box: np.ndarray, owner: np.ndarray, row: np.ndar
                          np.where(ok & (a > 0), beta, 0.0)))
             hi_t.append((np.where(ok & (a < 0), alpha + slack, np.inf),
                          np.where(ok & (a < 0), beta, 0.0)))
-    y = row.astype(np.float64)
-    lo = col0[owner]
-    hi = col1[owner]
-    for (la, lb), (ha, hb) in zip(lo_t, hi_t):
-        lo = np.maximum(lo, np.ceil(la[owner] + lb[owner] * y))
-        hi = np.minimum(hi, np.floor(ha[owner] + hb[owner] * y))
-    lo = np.minimum(lo, col1[owner] + 1)
-    hi = np.maximum(hi, col0[owner] - 1)
-    return lo.astype(np.int64), hi.astype(np.int64)
+    # per row: one fused pass (gathers of the per-triangle terms, products, rounding,
+    # clamps) instead of some forty NumPy passes over the rows
+    t_cap, m_cap = bucket(len(col0), minimum=16), bucket(len(row), minimum=1024)
+    terms = [col0, col1] + [x for pair in lo_t + hi_t for x in pair]
+    with x64():
+        lo, hi = _span_rows(tuple(jnp.asarray(pad(x, t_cap)) for x in terms),
+                            jnp.asarray(pad(owner, m_cap, dtype=np.int64)),
+                            jnp.asarray(pad(row, m_cap, dtype=np.float64)))
+        return np.asarray(lo)[: len(row)], np.asarray(hi)[: len(row)]
+
+
+@jax.jit
+def _span_rows(terms, owner, y):
+    """(lo, hi) int64 [M] of :func:`row_spans` from the per-triangle terms (float64 [T]:
+    col0, col1, then alpha and beta of each edge's lower bound, then of its upper
+    bound), each row's triangle ``owner`` [M] and row ``y`` [M] (float64)."""
+    def g(x):
+        return x.at[owner].get(mode="promise_in_bounds")
+
+    col0, col1 = g(terms[0]), g(terms[1])
+    lo, hi = col0, col1
+    for i in range(3):
+        lo = jnp.maximum(lo, jnp.ceil(g(terms[2 + 2 * i]) + g(terms[3 + 2 * i]) * y))
+        hi = jnp.minimum(hi, jnp.floor(g(terms[8 + 2 * i]) + g(terms[9 + 2 * i]) * y))
+    lo = jnp.minimum(lo, col1 + 1)
+    hi = jnp.maximum(hi, col0 - 1)
+    return lo.astype(jnp.int64), hi.astype(jnp.int64)
 
 
 def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
                select: list[np.ndarray] | None = None, mode: str | None = None,
                inner_test: str = "corners", tau: float = 0.0, eps: float = EPS64
                ) -> tuple[np.ndarray, np.ndarray]:
-    """(triangle, key index) pairs whose texel is in a triangle's box (NumPy), and with a
+    """(triangle, key index) pairs whose texel is in a triangle's box, and with a
     ``mode`` only in the columns of each row that can pass its coverage test
     (:func:`row_spans`).
 
@@ -481,7 +518,7 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
            select: list[np.ndarray] | None = None) -> Fragments:
     """Rasterize over sorted texel ``keys`` [K] in ``mode`` (float64, jit-compiled).
 
-    Two phases: the exact candidate count (:func:`row_segments`, NumPy), then the fill,
+    Two phases: the exact candidate count (:func:`row_segments`), then the fill,
     coverage and depth range of every candidate under ``jax.jit`` at a static capacity
     (the candidates padded to one of ``FRAGMENT_BUCKET_STEPS`` sizes per octave, the
     segments, the keys and the triangles to powers of two, so shapes repeat across
