@@ -465,3 +465,16 @@ def test_row_segments_with_and_without_the_rank_table(monkeypatch):
         assert len(with_table[0]) > 50
         for a, b in zip(with_table, searched):
             assert np.array_equal(a, b), mode
+
+
+def test_an_unknown_mode_is_refused(monkeypatch):
+    """The coverage test and the narrowed count pass name the allowed modes."""
+    monkeypatch.setattr(lr, "NARROW_MIN_COLUMNS", 1)
+    cam, tri = _frame("ortho", 2)
+    setups = [lr.setup_face(f, tri) for f in cam.faces]
+    keys = np.arange(R * R)
+    t, slot = lr.candidates(setups, keys, R)
+    with pytest.raises(ValueError, match="standard.*inner.*outer"):
+        lr.coverage(setups[0].unit[t], None, keys[slot] % R, keys[slot] // R, "centre")
+    with pytest.raises(ValueError, match="standard.*inner.*outer"):
+        lr.candidates(setups, keys, R, None, "centre")
