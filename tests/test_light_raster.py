@@ -289,6 +289,31 @@ def test_jax_raster_equals_the_numpy_enumeration(kind, monkeypatch):
         lr.raster(setups, keys, R, "outer", "corners", 1e-3)
 
 
+def test_raster_computes_only_the_fields_asked_for():
+    """A raster asked for some fields gives them bit for bit as the full raster does, None
+    for the others; an unknown field, and compacting one not computed, are refused."""
+    cam, tri = _frame("persp", 8)
+    setups = [lr.setup_face(f, tri) for f in cam.faces]
+    keys = np.arange(0, R * R, 2)
+    with lr.x64():
+        full = lr.raster(setups, keys, R, "outer", "corners", 1e-3)
+        for fields in (("tri", "slot", "covered", "lo"), ("slot", "covered", "hi", "centre",
+                                                           "slope"), ("covered",)):
+            part = lr.raster(setups, keys, R, "outer", "corners", 1e-3, fields=fields)
+            assert part.candidates == full.candidates
+            for name in lr.FRAGMENT_FIELDS:
+                got = getattr(part, name)
+                if name in fields:
+                    assert np.array_equal(np.asarray(got), np.asarray(getattr(full, name)))
+                else:
+                    assert got is None
+        with pytest.raises(ValueError, match="unknown fragment fields.*'depth'.*allowed"):
+            lr.raster(setups, keys, R, "outer", fields=("slot", "depth"))
+        with pytest.raises(ValueError, match="not computed"):
+            lr.raster(setups, keys, R, "outer", fields=("covered", "slot")).compact("lo")
+    assert len(full.compact("lo")[0]) == int(np.asarray(full.covered).sum()) > 0
+
+
 @pytest.mark.parametrize("n,size", [(0, 16), (7, 6 * 16 * 16), (500, 64), (500, 2000)])
 def test_unique_keys_equals_numpy_unique(n, size):
     """Both branches (occupancy table, sort) against np.unique."""

@@ -89,37 +89,19 @@ def _pair_test(points, scale, planes, bound, node, tri, count):
 
 
 @jax.jit
-def _trace_count(slot, covered, lo, limit, length):
+def _depth_keep(slot, covered, lo, limit):
     """Depth culling of the outer fragments (``limit`` [K]: the farthest node's delta plus
-    its margin): (kept bool [C], pairs per fragment [C], traced, depth-culled, pairs,
-    kept fragments per list int32 [K]: the tests of each of its nodes)."""
+    its margin): kept bool [C] and the number of covered fragments culled."""
     keep = covered & (lo < limit[slot])
-    pairs = jnp.where(keep, length[slot], 0)
-    per_list = jnp.zeros(length.shape[0], jnp.int32).at[slot].add(keep.astype(jnp.int32))
-    return keep, pairs, keep.sum(), (covered & ~keep).sum(), pairs.sum(), per_list
-
-
-@jax.jit
-def _exclusive_sum(x):
-    return lr.running_sum(x) - x
-
-
-@functools.partial(jax.jit, static_argnames=("size",))
-def _kept_runs(keep, first, tri, slot, *, size):
-    """The kept fragments' run starts, triangles and list slots, compacted to ``size``
-    (the rest: runs that start beyond every pair, so they own none)."""
-    idx = jnp.nonzero(keep, size=size, fill_value=keep.shape[0])[0]
-    far = jnp.iinfo(first.dtype).max // 2
-    return (first.at[idx].get(mode="fill", fill_value=far),
-            tri.at[idx].get(mode="fill", fill_value=0),
-            slot.at[idx].get(mode="fill", fill_value=0))
+    return keep, (covered & ~keep).sum()
 
 
 @functools.partial(jax.jit, static_argnames=("capacity",))
 def _trace_pairs(first_k, tri_k, slot_k, lo, offset, total, start, order, points, scale,
                  planes, bound, shadow, *, capacity):
     """Pairs ``offset + arange(capacity)`` (of ``total``) of the kept fragments' runs
-    (:func:`_kept_runs`; run f starts at ``first_k[f]``, run ``lo`` holds pair
+    (compacted, then padded with runs that start beyond every pair, so they own none;
+    run f starts at ``first_k[f]``, run ``lo`` holds pair
     ``offset``): every node of f's list against f's triangle; ``shadow`` (int8 [S])
     accumulated. Only the ``capacity + 1`` runs from ``lo`` can hold the chunk's pairs
     (every kept run has at least one), so only they are read."""
@@ -280,7 +262,8 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
         with timer.stage("trace"):
             select = [ok_tri & s.ok for s in setups]
             with lr.x64():
-                frags = lr.raster(setups, lkeys, r, "outer", tau=tau, select=select)
+                frags = lr.raster(setups, lkeys, r, "outer", tau=tau, select=select,
+                                  fields=("tri", "slot", "covered", "lo"))
                 shadow, tests_per, traced, depth_culled = engine.trace(
                     frags, lists, points, scale_j, planes, bound_j, s_count)
             # valid casters with a light-space determinant of exactly 0 on a face: test
@@ -367,30 +350,35 @@ class JaxEngine:
             depth-culled fragments.
         """
         k_cap = bucket(len(lists.length))
-        length = jnp.asarray(pad(lists.length, k_cap))
-        keep, pairs, traced, culled, total, per_list = _trace_count(
-            frags.slot, frags.covered, frags.lo,
-            jnp.asarray(pad(lists.maxd + lists.maxm, k_cap)), length)
-        total = int(total)
-        first = _exclusive_sum(pairs)
+        keep, culled = _depth_keep(frags.slot, frags.covered, frags.lo,
+                                   jnp.asarray(pad(lists.maxd + lists.maxm, k_cap)))
+        # the kept fragments' compaction and pair offsets on the host: a scan and a
+        # compaction over every candidate cost XLA on the CPU several times more
+        kept = np.flatnonzero(np.asarray(keep)[: frags.candidates])
+        slot = np.asarray(frags.slot)[kept]
+        pairs = lists.length[slot]
+        first = np.cumsum(pairs) - pairs
+        total, traced = int(pairs.sum()), len(kept)
         start = jnp.asarray(pad(lists.start, k_cap))
         order = jnp.asarray(pad(lists.order, bucket(len(lists.order))))
         shadow = jnp.zeros(points.shape[0], jnp.int8)
         cap = bucket(min(total, PAIR_CHUNK), minimum=min(1024, PAIR_CHUNK))
         if total:
             # each chunk reads only the runs that can hold its pairs, not every fragment
-            runs = _kept_runs(keep, first, frags.tri, frags.slot,
-                              size=bucket(int(traced) + cap + 1))
-            starts = np.asarray(runs[0][: int(traced)])
+            size = bucket(traced + cap + 1)
+            runs = (jnp.asarray(pad(first, size, fill=np.iinfo(np.int64).max // 2)),
+                    jnp.asarray(pad(np.asarray(frags.tri)[kept], size)),
+                    jnp.asarray(pad(slot, size)))
         for offset in range(0, total, cap):
-            lo = int(np.searchsorted(starts, offset, side="right")) - 1
+            lo = int(np.searchsorted(first, offset, side="right")) - 1
             shadow = _trace_pairs(*runs, lo, offset, total, start, order, points, scale,
                                   planes, bound, shadow, capacity=cap)
         # every node of a list is tested once by each kept fragment of its texel (no
         # scatter per pair)
         tests = np.zeros(count, np.int64)
-        tests[lists.order] = np.repeat(np.asarray(per_list)[: len(lists.length)], lists.length)
-        return (np.asarray(shadow[:count]).astype(bool), tests, int(traced), int(culled))
+        per_list = np.bincount(slot, minlength=len(lists.length))
+        tests[lists.order] = np.repeat(per_list, lists.length)
+        return (np.asarray(shadow[:count]).astype(bool), tests, traced, int(culled))
 
 
 ENGINE = JaxEngine()
@@ -476,7 +464,8 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
         select.append(drawn & covers & (area >= min_area))
     s_cap = bucket(samples.count)
     with lr.x64():
-        fr = lr.raster(setups, keys, r, "inner", test, tau, select)
+        fr = lr.raster(setups, keys, r, "inner", test, tau, select,
+                       fields=("slot", "covered", "hi", "centre", "slope"))
         culled, texels = _csm_cull(
             fr.slot, fr.covered, fr.hi, fr.centre, fr.slope, jnp.asarray(pad(inv, s_cap)),
             jnp.asarray(pad(delta_q, s_cap, fill=-np.inf)), jnp.asarray(pad(m_delta, s_cap)),

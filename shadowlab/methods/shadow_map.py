@@ -113,9 +113,11 @@ def shadow_map(scene, gbuf, light, *, precision, shadow_eps, resolution, project
             ok = np.any(np.stack([s.ok for s in setups]), axis=0)
         with timer.stage("raster"):
             with lr.x64():
-                tri, slot, slope, depth_c = lr.raster(setups, keys, r, "standard").compact(
-                    "tri", "slot", "slope", "centre")
+                wanted = ("slot", "centre") + (("slope",) if bias == "slope" else ())
+                frags = lr.raster(setups, keys, r, "standard", fields=("covered",) + wanted)
+                slot, depth_c, *slope = frags.compact(*wanted)
             if bias == "slope":
+                slope, = slope
                 ulp = np.spacing(np.abs(depth_c).astype(np.float32)).astype(np.float64)
                 depth_c = depth_c + bias_factor * slope + bias_units * ulp
             dmap = np.full(len(keys), np.inf)
@@ -141,7 +143,7 @@ def shadow_map(scene, gbuf, light, *, precision, shadow_eps, resolution, project
     lit = samples.scatter(lit_values, fill=False)
     counters.update({
         "casters": int(ok.sum()), "culled_triangles": int(scene.num_triangles - ok.sum()),
-        "sm_fragments": int(len(tri)), "light_faces": len(cam.faces),
+        "sm_fragments": int(len(slot)), "light_faces": len(cam.faces),
         "light_texels": int(len(keys)),
         "shadowed": int(samples.count - lit_values.sum()), "lit": int(lit.sum())})
     return ShadowResult(lit, counters, dict(timer.times, total=timer.total))

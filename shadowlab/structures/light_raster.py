@@ -449,19 +449,25 @@ class Fragments:
         lo, hi, centre: float64 [C] the depth plane's min, max and centre over the texel;
         slope: float64 [C] max(|d delta / du|, |d delta / dv|) (per texel);
         candidates: the exact number of candidate fragments (the rest is padding).
+
+    A field that the :func:`raster` call did not ask for is None.
     """
 
-    tri: jax.Array
-    slot: jax.Array
-    covered: jax.Array
-    lo: jax.Array
-    hi: jax.Array
-    centre: jax.Array
-    slope: jax.Array
+    tri: jax.Array | None
+    slot: jax.Array | None
+    covered: jax.Array | None
+    lo: jax.Array | None
+    hi: jax.Array | None
+    centre: jax.Array | None
+    slope: jax.Array | None
     candidates: int
 
     def compact(self, *names: str) -> list[np.ndarray]:
         """NumPy arrays ``names`` of the covered fragments, in candidate order."""
+        missing = [n for n in ("covered",) + names if getattr(self, n) is None]
+        if missing:
+            raise ValueError(f"Fragments.compact: {missing} were not computed; pass them "
+                             "in raster(..., fields=...)")
         keep = np.flatnonzero(np.asarray(self.covered))
         return [np.asarray(getattr(self, n))[keep] for n in names]
 
@@ -488,12 +494,17 @@ def running_sum(x):
     return jax.lax.associative_scan(jnp.add, x)
 
 
+#: the per-fragment arrays of :class:`Fragments`, in its order
+FRAGMENT_FIELDS = ("tri", "slot", "covered", "lo", "hi", "centre", "slope")
+
+
 @functools.partial(jax.jit, static_argnames=("capacity", "resolution", "mode", "inner_test",
-                                             "t_cap"))
+                                             "t_cap", "fields"))
 def _raster_kernel(ft, first, count, keys, unit, depth, tau, *, capacity, resolution, mode,
-                   inner_test, t_cap):
+                   inner_test, t_cap, fields):
     """The fill pass: fragment i of the segments' runs, its texel, coverage and depth
-    range (see :class:`Fragments`)."""
+    range (see :class:`Fragments`), only the arrays ``fields`` (the others are never
+    written: each is a full [C] pass of memory)."""
     start = running_sum(count) - count
     i = jnp.arange(capacity, dtype=start.dtype)
     seg = segment_owner(start, capacity)
@@ -506,13 +517,17 @@ def _raster_kernel(ft, first, count, keys, unit, depth, tau, *, capacity, resolu
     cov = coverage(unit[ftv], None, col, row, mode, inner_test, tau, xp=jnp) & valid
     lo, hi, centre = depth_range(plane, col, row, xp=jnp)
     slope = jnp.maximum(jnp.abs(plane[:, 0]), jnp.abs(plane[:, 1]))
-    return ftv % t_cap, slot, cov, lo, hi, centre, slope
+    out = {"tri": ftv % t_cap, "slot": slot, "covered": cov, "lo": lo, "hi": hi,
+           "centre": centre, "slope": slope}
+    return tuple(out[f] for f in fields)
 
 
 def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str,
            inner_test: str = "corners", tau: float = 0.0,
-           select: list[np.ndarray] | None = None) -> Fragments:
+           select: list[np.ndarray] | None = None,
+           fields: tuple[str, ...] = FRAGMENT_FIELDS) -> Fragments:
     """Rasterize over sorted texel ``keys`` [K] in ``mode`` (float64, jit-compiled).
+    ``fields``: the :class:`Fragments` arrays to compute (the rest are None).
 
     Two phases: the exact candidate count (:func:`row_segments`), then the fill,
     coverage and depth range of every candidate under ``jax.jit`` at a static capacity
@@ -524,6 +539,10 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
         # the spans' rounding slack is sized for the float64 test
         raise RuntimeError("light_raster.raster runs inside light_raster.x64() (its fill "
                            "and coverage test are float64)")
+    unknown = sorted(set(fields) - set(FRAGMENT_FIELDS))
+    if unknown:
+        raise ValueError(f"light_raster.raster: unknown fragment fields {unknown}; allowed: "
+                         f"{', '.join(FRAGMENT_FIELDS)}")
     face, tri, first, count = row_segments(setups, keys, resolution, select, mode,
                                            inner_test, tau, EPS64)
     t_cap = bucket(max(len(s.unit) for s in setups), minimum=16)
@@ -542,9 +561,10 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
         jnp.asarray(pad(count, m_cap)), jnp.asarray(pad(keys, bucket(len(keys)))),
         jnp.asarray(unit), jnp.asarray(depth), jnp.asarray(tau, jnp.float64),
         capacity=bucket(total, steps=FRAGMENT_BUCKET_STEPS), resolution=int(resolution),
-        mode=mode, inner_test=inner_test,
-        t_cap=t_cap)
-    return Fragments(*out, candidates=total)
+        mode=mode, inner_test=inner_test, t_cap=t_cap,
+        fields=tuple(f for f in FRAGMENT_FIELDS if f in fields))
+    computed = dict(zip((f for f in FRAGMENT_FIELDS if f in fields), out))
+    return Fragments(**{f: computed.get(f) for f in FRAGMENT_FIELDS}, candidates=total)
 
 
 def _distance(values, norms, xp):
