@@ -42,7 +42,8 @@ Everything here is float64 NumPy set-up plus elementwise evaluation that runs in
 under ``jax.jit`` (``xp``) in the dtype of its inputs. The methods rasterize with
 :func:`raster`: the exact count (:func:`row_segments`: NumPy bookkeeping with jitted
 per-row passes for the spans and the key ranks), then one jit-compiled
-fill at static capacities (float64, :func:`x64`).
+fill at static capacities (float64, :func:`x64`) that writes only the fragment arrays its
+caller reads.
 """
 
 from __future__ import annotations
