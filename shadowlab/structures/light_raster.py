@@ -237,7 +237,7 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
     """The counting pass of the rasterizer: per (triangle, row of its box) on each face,
     the run of ``keys`` inside the row's columns (found by :class:`KeyRank`): the box's
     columns, or with a ``mode`` for
-    a box at least ``NARROW_MIN_COLUMNS`` wide only those that can pass the mode's
+    a box at least :func:`narrow_min_columns` wide only those that can pass the mode's
     coverage test (:func:`row_spans`).
 
     Args: as :func:`candidates`.
@@ -249,6 +249,7 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
     r = int(resolution)
     out = []
     rank = key_rank(keys, len(setups) * r * r)
+    min_columns = narrow_min_columns(len(keys) / (len(setups) * r * r))
     for f, st in enumerate(setups):
         b = st.bbox
         use = (b[:, 0] <= b[:, 1]) & (b[:, 2] <= b[:, 3])
@@ -260,7 +261,7 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
         row = b[rt, 2] + run_offsets(nrows)
         col0, col1 = b[rt, 0], b[rt, 1]
         if mode is not None:
-            wide = b[t, 1] - b[t, 0] + 1 >= NARROW_MIN_COLUMNS
+            wide = b[t, 1] - b[t, 0] + 1 >= min_columns
             if wide.any():
                 rows_of_wide = np.repeat(wide, nrows)
                 tw = t[wide]
@@ -331,10 +332,24 @@ def key_rank(keys: np.ndarray, size: int) -> KeyRank | None:
     return KeyRank(keys, size)
 
 
-#: boxes narrower than this are enumerated whole: a row of a small triangle's box has
-#: few columns to drop (chosen when narrowing cost about 80 ns per row in NumPy;
-#: docs/shadow_map.md, "Row spans")
+#: boxes at least this wide are always narrowed to their rows' spans (docs/shadow_map.md,
+#: "Row spans")
 NARROW_MIN_COLUMNS = 16
+#: narrower boxes, down to NARROW_DENSE_COLUMNS, are narrowed where a box row is expected
+#: to hold at least NARROW_MIN_KEYS keys (its width times the grid's key density): over
+#: sparse keys a span drops few candidates and costs a row pass
+NARROW_DENSE_COLUMNS = 8
+NARROW_MIN_KEYS = 2.0
+
+
+def narrow_min_columns(density: float) -> int:
+    """The narrowest box whose rows :func:`row_segments` narrows to their spans, for keys
+    filling ``density`` (0-1) of the grid's texels: the width at which a row is expected
+    to hold ``NARROW_MIN_KEYS`` keys, within [NARROW_DENSE_COLUMNS, NARROW_MIN_COLUMNS]."""
+    if density <= 0:
+        return NARROW_MIN_COLUMNS
+    want = math.ceil(NARROW_MIN_KEYS / density)
+    return int(min(NARROW_MIN_COLUMNS, max(NARROW_DENSE_COLUMNS, want)))
 #: fragment capacities per octave (:func:`core.capacity.bucket`): with 2 a capacity is at
 #: most 1.5x the candidates (a power of two: up to 2x), and the fill and the IZB's tracing
 #: process the padding too, so fewer candidates mean less work; twice the compiled sizes
