@@ -428,29 +428,29 @@ def test_row_spans_keep_every_covered_fragment(kind, precision, min_columns, mon
         monkeypatch.setattr(lr, "NARROW_MIN_COLUMNS", min_columns)
 
 
-def test_narrow_width_follows_the_key_density(monkeypatch):
+def test_narrow_width_follows_each_faces_key_density(monkeypatch):
     """Boxes from 16 columns are always narrowed; narrower ones down to 8 where a row is
-    expected to hold 2 keys (width x density); and row_segments uses that width."""
-    assert lr.narrow_min_columns(0.0) == 16
-    assert lr.narrow_min_columns(0.01) == 16           # sparse: 200 columns for 2 keys
-    assert lr.narrow_min_columns(2 / 12) == 12
-    assert lr.narrow_min_columns(0.25) == 8
-    assert lr.narrow_min_columns(1.0) == 8
+    expected to hold 2 keys (width x the face's key density); and row_segments uses each
+    face's own width (two copies of a face: dense keys on the first, sparse on the other)."""
+    assert lr.narrow_min_columns(0, 100) == 16
+    assert lr.narrow_min_columns(1, 100) == 16         # sparse: 200 columns for 2 keys
+    assert lr.narrow_min_columns(2, 12) == 12
+    assert lr.narrow_min_columns(3, 12) == 8
+    assert lr.narrow_min_columns(100, 100) == 8
+    assert lr.narrow_min_columns(25, 100) == 8 and lr.narrow_min_columns(24, 100) == 9
     cam, tri = _sliver_frame("ortho", 11)
-    setups = [lr.setup_face(f, tri) for f in cam.faces]
-    width = setups[0].bbox[:, 1] - setups[0].bbox[:, 0] + 1
-    mid = np.flatnonzero((width >= 8) & (width < 16))
-    assert len(mid)
+    setup = lr.setup_face(cam.faces[0], tri)
+    width = setup.bbox[:, 1] - setup.bbox[:, 0] + 1
+    assert np.any((width >= 8) & (width < 16))
     seen = []
     real = lr.row_spans
     monkeypatch.setattr(lr, "row_spans", lambda unit, box, *a, **k: (
         seen.append(box[:, 1] - box[:, 0] + 1), real(unit, box, *a, **k))[1])
-    for keys, narrowest in ((np.arange(R * R), 8), (np.arange(0, R * R, 64), 16)):
-        seen.clear()
-        lr.candidates(setups, keys, R, None, "outer", "corners", 1e-3)
-        widths = np.concatenate(seen) if seen else np.zeros(0, np.int64)
-        assert np.all(widths >= narrowest)
-        assert np.any(widths < 16) == (narrowest == 8)
+    keys = np.concatenate([np.arange(R * R), R * R + np.arange(0, R * R, 64)])
+    lr.candidates([setup, setup], keys, R, None, "outer", "corners", 1e-3)
+    dense, sparse = seen[0], (seen[1] if len(seen) > 1 else np.zeros(0, np.int64))
+    assert dense.min() >= 8 and np.any(dense < 16)
+    assert np.all(sparse >= 16)
 
 
 def test_row_spans_on_hand_made_rows():

@@ -2,7 +2,8 @@
 of ``shadowlab.structures.light_raster``, for the methods that rasterize in light space:
 ``before``: binary searches, whole box rows, power-of-two fragment capacities (the code
 before the change); ``rank``: the key rank table and 2 capacities per octave, whole box
-rows; ``shipped``: both plus the row spans (``NARROW_MIN_COLUMNS``). In turn, in one
+rows; ``shipped``: both plus the row spans (``NARROW_MIN_COLUMNS``,
+``NARROW_DENSE_COLUMNS``). In turn, in one
 process, after a warm-up call of each, with a check that the lit masks and every scalar
 counter are identical. Times: the whole compute_shadows call and its stages (medians),
 with the candidate and covered fragment counts of each raster call of the frame.
@@ -22,10 +23,11 @@ from shadowlab.scene.procedural import default_view
 from shadowlab.structures import light_raster as lr
 
 res, rounds, out, methods = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], sys.argv[4]
-SHIPPED = (lr.key_rank, lr.FRAGMENT_BUCKET_STEPS, lr.NARROW_MIN_COLUMNS)
+SHIPPED = (lr.key_rank, lr.FRAGMENT_BUCKET_STEPS, lr.NARROW_MIN_COLUMNS,
+           lr.NARROW_DENSE_COLUMNS)
 NO_SPANS = 1 << 62
-SETTINGS = {"before": (lambda keys, size: None, 1, NO_SPANS),
-            "rank": (SHIPPED[0], SHIPPED[1], NO_SPANS), "shipped": SHIPPED}
+SETTINGS = {"before": (lambda keys, size: None, 1, NO_SPANS, NO_SPANS),
+            "rank": (SHIPPED[0], SHIPPED[1], NO_SPANS, NO_SPANS), "shipped": SHIPPED}
 OPTIONS = {"izb": {"verify": False}}
 
 calls = []
@@ -49,7 +51,8 @@ for spec in sys.argv[5:]:
     gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(res, res)))
     for m in methods.split(","):
         def run(setting):
-            lr.key_rank, lr.FRAGMENT_BUCKET_STEPS, lr.NARROW_MIN_COLUMNS = SETTINGS[setting]
+            (lr.key_rank, lr.FRAGMENT_BUCKET_STEPS, lr.NARROW_MIN_COLUMNS,
+             lr.NARROW_DENSE_COLUMNS) = SETTINGS[setting]
             calls.clear()
             t0 = time.perf_counter()
             r = sl.compute_shadows(scene, gbuf, view.light, method=m, **OPTIONS.get(m, {}))
@@ -87,7 +90,8 @@ for spec in sys.argv[5:]:
                                           for k in SETTINGS)
               + f" (shipped x{row['shipped_over_before']:.3f}), identical {row['identical']}",
               flush=True)
-lr.key_rank, lr.FRAGMENT_BUCKET_STEPS, lr.NARROW_MIN_COLUMNS = SHIPPED
+(lr.key_rank, lr.FRAGMENT_BUCKET_STEPS, lr.NARROW_MIN_COLUMNS,
+ lr.NARROW_DENSE_COLUMNS) = SHIPPED
 lr.raster = real_raster
 with open(out, "w") as f:
     json.dump({"resolution": res, "rounds": rounds, "rows": rows}, f, indent=1)

@@ -366,7 +366,7 @@ class JaxEngine:
         if total:
             # each chunk reads only the runs that can hold its pairs, not every fragment
             size = bucket(traced + cap + 1)
-            runs = (jnp.asarray(pad(first, size, fill=np.iinfo(np.int64).max // 2)),
+            runs = (jnp.asarray(pad(first, size, fill=np.iinfo(first.dtype).max // 2)),
                     jnp.asarray(pad(np.asarray(frags.tri)[kept], size)),
                     jnp.asarray(pad(slot, size)))
         for offset in range(0, total, cap):
@@ -464,12 +464,14 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
         select.append(drawn & covers & (area >= min_area))
     s_cap = bucket(samples.count)
     with lr.x64():
+        slope = depth_mode == "slope"
         fr = lr.raster(setups, keys, r, "inner", test, tau, select,
-                       fields=("slot", "covered", "hi", "centre", "slope"))
-        culled, texels = _csm_cull(
-            fr.slot, fr.covered, fr.hi, fr.centre, fr.slope, jnp.asarray(pad(inv, s_cap)),
+                       fields=("slot", "covered", "hi") + (("centre", "slope") if slope else ()))
+        culled, texels = _csm_cull(   # the corner depth reads only hi (passed for the rest)
+            fr.slot, fr.covered, fr.hi, fr.centre if slope else fr.hi,
+            fr.slope if slope else fr.hi, jnp.asarray(pad(inv, s_cap)),
             jnp.asarray(pad(delta_q, s_cap, fill=-np.inf)), jnp.asarray(pad(m_delta, s_cap)),
-            slope=depth_mode == "slope", size=bucket(len(keys)))
+            slope=slope, size=bucket(len(keys)))
         return np.asarray(culled)[: samples.count], int(texels), small
 
 

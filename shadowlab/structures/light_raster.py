@@ -249,8 +249,9 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
     r = int(resolution)
     out = []
     rank = key_rank(keys, len(setups) * r * r)
-    min_columns = narrow_min_columns(len(keys) / (len(setups) * r * r))
+    face_ends = np.searchsorted(keys, np.arange(len(setups) + 1) * r * r)
     for f, st in enumerate(setups):
+        min_columns = narrow_min_columns(int(face_ends[f + 1] - face_ends[f]), r * r)
         b = st.bbox
         use = (b[:, 0] <= b[:, 1]) & (b[:, 2] <= b[:, 3])
         if select is not None:
@@ -336,19 +337,20 @@ def key_rank(keys: np.ndarray, size: int) -> KeyRank | None:
 #: "Row spans")
 NARROW_MIN_COLUMNS = 16
 #: narrower boxes, down to NARROW_DENSE_COLUMNS, are narrowed where a box row is expected
-#: to hold at least NARROW_MIN_KEYS keys (its width times the grid's key density): over
+#: to hold at least NARROW_MIN_KEYS keys (its width times the face's key density): over
 #: sparse keys a span drops few candidates and costs a row pass
 NARROW_DENSE_COLUMNS = 8
-NARROW_MIN_KEYS = 2.0
+NARROW_MIN_KEYS = 2
 
 
-def narrow_min_columns(density: float) -> int:
-    """The narrowest box whose rows :func:`row_segments` narrows to their spans, for keys
-    filling ``density`` (0-1) of the grid's texels: the width at which a row is expected
-    to hold ``NARROW_MIN_KEYS`` keys, within [NARROW_DENSE_COLUMNS, NARROW_MIN_COLUMNS]."""
-    if density <= 0:
+def narrow_min_columns(face_keys: int, face_texels: int) -> int:
+    """The narrowest box whose rows :func:`row_segments` narrows to their spans, on a face
+    whose ``face_keys`` keys fill its ``face_texels`` texels: the width at which a row is
+    expected to hold ``NARROW_MIN_KEYS`` keys, at least NARROW_DENSE_COLUMNS, and never
+    above NARROW_MIN_COLUMNS (which wins if set below the other)."""
+    if face_keys <= 0:
         return NARROW_MIN_COLUMNS
-    want = math.ceil(NARROW_MIN_KEYS / density)
+    want = -(-int(NARROW_MIN_KEYS) * face_texels // face_keys)     # exact integer ceil
     return int(min(NARROW_MIN_COLUMNS, max(NARROW_DENSE_COLUMNS, want)))
 #: fragment capacities per octave (:func:`core.capacity.bucket`): with 2 a capacity is at
 #: most 1.5x the candidates (a power of two: up to 2x), and the fill and the IZB's tracing
