@@ -6,8 +6,10 @@ registry then calls the copy's own helpers), and this machine's speed drifts ove
 minutes. So each case runs in fresh processes, alternately on the working tree
 (``new``) and on a git worktree of ``BASE`` (``old``), ROUNDS times each. Every process
 renders the frame, calls the method 7 times and reports the median of the last 5 calls'
-stage times, a hash of the lit mask and scalar counters (which must agree between the
-arms), and the 1-minute load average before it started.
+stage times, a hash of the lit mask and scalar counters of the last call (which must
+agree between the arms; per-pixel counter maps are not hashed), the file its shadowlab
+was imported from (checked against its tree) and the 1-minute load average before it
+started. Within a round ``new`` runs first.
 
 usage: python docs/repro/commit_ab.py BASE ROUNDS OUT.json "METHOD SCENE [k=v ...] [o.opt=v ...]" ...
   k=v: scene parameters; o.opt=v: method options (JSON values), e.g.
@@ -36,7 +38,7 @@ runs = [sl.compute_shadows(scene, gbuf, view.light, method=method, **opts) for _
 r = runs[-1]
 scalars = sorted((k, v) for k, v in r.counters.items() if np.ndim(v) == 0)
 digest = hashlib.sha1(np.packbits(r.lit).tobytes() + repr(scalars).encode()).hexdigest()
-print(json.dumps({"hash": digest[:12], "stages_ms": {
+print(json.dumps({"hash": digest[:12], "module": sl.__file__, "stages_ms": {
     k: round(1e3 * statistics.median(x.timings[k] for x in runs[2:]), 1) for k in r.timings}}))
 """
 
@@ -48,11 +50,12 @@ def main(base: str, rounds: int, out: str, cases: list[str]) -> None:
                                          cwd=root, text=True).strip())
     with tempfile.TemporaryDirectory() as tmp:
         old = os.path.join(tmp, "base")
-        subprocess.check_call(["git", "worktree", "add", "-q", "--detach", old, base], cwd=root)
-        base_sha = subprocess.check_output(["git", "rev-parse", "HEAD"], cwd=old,
-                                           text=True).strip()
         rows = []
         try:
+            subprocess.check_call(["git", "worktree", "add", "-q", "--detach", old, base],
+                                  cwd=root)
+            base_sha = subprocess.check_output(["git", "rev-parse", "HEAD"], cwd=old,
+                                               text=True).strip()
             for case in cases:
                 for i in range(rounds):
                     for arm, tree in (("new", root), ("old", old)):
@@ -64,10 +67,14 @@ def main(base: str, rounds: int, out: str, cases: list[str]) -> None:
                             raise SystemExit(f"{arm} {case!r} failed:\n{res.stderr[-2000:]}")
                         row = {"case": case, "arm": arm, "round": i, "load_1min": load,
                                **json.loads(res.stdout.strip().splitlines()[-1])}
+                        if not os.path.realpath(row["module"]).startswith(
+                                os.path.realpath(tree) + os.sep):
+                            raise SystemExit(f"{arm} imported {row['module']}, not {tree}")
                         rows.append(row)
                         print(json.dumps(row), flush=True)
         finally:
             subprocess.call(["git", "worktree", "remove", "--force", old], cwd=root)
+            subprocess.call(["git", "worktree", "prune"], cwd=root)
     summary = {}
     for case in cases:
         arms = {a: [r for r in rows if r["case"] == case and r["arm"] == a]
