@@ -352,6 +352,8 @@ def narrow_min_columns(face_keys: int, face_texels: int) -> int:
         return NARROW_MIN_COLUMNS
     want = -(-int(NARROW_MIN_KEYS) * face_texels // face_keys)     # exact integer ceil
     return int(min(NARROW_MIN_COLUMNS, max(NARROW_DENSE_COLUMNS, want)))
+
+
 #: fragment capacities per octave (:func:`core.capacity.bucket`): with 2 a capacity is at
 #: most 1.5x the candidates (a power of two: up to 2x), and the fill and the IZB's tracing
 #: process the padding too, so fewer candidates mean less work; twice the compiled sizes
