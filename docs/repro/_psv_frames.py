@@ -1,4 +1,5 @@
-"""Shared set-up of the PSV repro scripts: scene specs, frames and the query's inputs."""
+"""Shared set-up of the repro scripts: scene specs and frames (all of them), and the PSV
+query's inputs."""
 import os
 
 import numpy as np

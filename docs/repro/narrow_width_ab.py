@@ -14,9 +14,9 @@ import sys
 import time
 
 import numpy as np
+from _psv_frames import frame
 
 import shadowlab as sl
-from shadowlab.scene.procedural import default_view
 from shadowlab.structures import light_raster as lr
 
 widths = [int(x) for x in sys.argv[1].split(",")]
@@ -24,11 +24,7 @@ rounds, out, methods = int(sys.argv[2]), sys.argv[3], sys.argv[4].split(",")
 shipped = lr.NARROW_DENSE_COLUMNS
 rows = []
 for spec in sys.argv[5:]:
-    name, _, params = spec.partition(":")
-    kw = {k: int(v) for k, v in (p.split("=") for p in params.split(",") if p)}
-    scene = sl.load_scene(name, **kw)
-    view = default_view(name, scene)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(1024, 1024)))
+    scene, view, gbuf = frame(spec, 1024)
     for m in methods:
         times, ref = {w: [] for w in widths}, {}
         for w in widths:                    # warm-up, and the results to compare

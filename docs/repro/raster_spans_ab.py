@@ -17,9 +17,9 @@ import sys
 import time
 
 import numpy as np
+from _psv_frames import frame
 
 import shadowlab as sl
-from shadowlab.scene.procedural import default_view
 from shadowlab.structures import light_raster as lr
 
 res, rounds, out, methods = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], sys.argv[4]
@@ -44,11 +44,7 @@ def counting_raster(setups, keys, resolution, mode, *args, **kw):
 lr.raster = counting_raster
 rows = []
 for spec in sys.argv[5:]:
-    name, _, params = spec.partition(":")
-    kw = {k: int(v) for k, v in (p.split("=") for p in params.split(",") if p)}
-    scene = sl.load_scene(name, **kw)
-    view = default_view(name, scene)
-    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(res, res)))
+    scene, view, gbuf = frame(spec, res)
     for m in methods.split(","):
         def run(setting):
             (lr.key_rank, lr.FRAGMENT_BUCKET_STEPS, lr.NARROW_MIN_COLUMNS,

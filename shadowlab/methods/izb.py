@@ -428,11 +428,17 @@ def light_area(setup: lr.FaceSetup) -> np.ndarray:
     return np.where(front, setup.absdet / (2 * np.prod(w, axis=1)), 0.0)
 
 
-@functools.partial(jax.jit, static_argnames=("slope", "size"))
-def _csm_cull(slot, full, hi, centre, gslope, inv, delta_q, margin, *, slope, size):
+@functools.partial(jax.jit, static_argnames=("size",))
+def _csm_cull(slot, full, hi, slope_terms, inv, delta_q, margin, *, size):
     """bool [S] samples culled by the CSM of the inner fragments (``full`` [C]) over
-    ``size`` texels (sample texel ``inv`` [S]), and the number of texels with a depth."""
-    cons = jnp.maximum(centre + gslope, hi) if slope else hi   # slope >= hi exactly; rounding
+    ``size`` texels (sample texel ``inv`` [S]), and the number of texels with a depth.
+    ``slope_terms``: None for the corner depth (``hi`` [C]), or the fragments' (centre,
+    slope) [C] for the poster's slope-scaled depth."""
+    if slope_terms is None:
+        cons = hi
+    else:                                       # slope >= hi exactly; the max: rounding
+        centre, gslope = slope_terms
+        cons = jnp.maximum(centre + gslope, hi)
     csm = jnp.full(size, jnp.inf).at[slot].min(jnp.where(full, cons, jnp.inf))
     return delta_q > csm[inv] + margin, jnp.isfinite(csm).sum()
 
@@ -467,11 +473,10 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
         slope = depth_mode == "slope"
         fr = lr.raster(setups, keys, r, "inner", test, tau, select,
                        fields=("slot", "covered", "hi") + (("centre", "slope") if slope else ()))
-        culled, texels = _csm_cull(   # the corner depth reads only hi (passed for the rest)
-            fr.slot, fr.covered, fr.hi, fr.centre if slope else fr.hi,
-            fr.slope if slope else fr.hi, jnp.asarray(pad(inv, s_cap)),
-            jnp.asarray(pad(delta_q, s_cap, fill=-np.inf)), jnp.asarray(pad(m_delta, s_cap)),
-            slope=slope, size=bucket(len(keys)))
+        culled, texels = _csm_cull(
+            fr.slot, fr.covered, fr.hi, (fr.centre, fr.slope) if slope else None,
+            jnp.asarray(pad(inv, s_cap)), jnp.asarray(pad(delta_q, s_cap, fill=-np.inf)),
+            jnp.asarray(pad(m_delta, s_cap)), size=bucket(len(keys)))
         return np.asarray(culled)[: samples.count], int(texels), small
 
 

@@ -115,9 +115,10 @@ def shadow_map(scene, gbuf, light, *, precision, shadow_eps, resolution, project
             with lr.x64():
                 wanted = ("slot", "centre") + (("slope",) if bias == "slope" else ())
                 frags = lr.raster(setups, keys, r, "standard", fields=("covered",) + wanted)
-                slot, depth_c, *slope = frags.compact(*wanted)
+                got = dict(zip(wanted, frags.compact(*wanted)))
+            slot, depth_c = got["slot"], got["centre"]
             if bias == "slope":
-                slope, = slope
+                slope = got["slope"]
                 ulp = np.spacing(np.abs(depth_c).astype(np.float32)).astype(np.float64)
                 depth_c = depth_c + bias_factor * slope + bias_units * ulp
             dmap = np.full(len(keys), np.inf)

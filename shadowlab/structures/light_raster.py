@@ -563,6 +563,7 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
     if unknown:
         raise ValueError(f"light_raster.raster: unknown fragment fields {unknown}; allowed: "
                          f"{', '.join(FRAGMENT_FIELDS)}")
+    ordered = tuple(f for f in FRAGMENT_FIELDS if f in fields)     # one compiled order
     face, tri, first, count = row_segments(setups, keys, resolution, select, mode,
                                            inner_test, tau, EPS64)
     t_cap = bucket(max(len(s.unit) for s in setups), minimum=16)
@@ -581,9 +582,8 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
         jnp.asarray(pad(count, m_cap)), jnp.asarray(pad(keys, bucket(len(keys)))),
         jnp.asarray(unit), jnp.asarray(depth), jnp.asarray(tau, jnp.float64),
         capacity=bucket(total, steps=FRAGMENT_BUCKET_STEPS), resolution=int(resolution),
-        mode=mode, inner_test=inner_test, t_cap=t_cap,
-        fields=tuple(f for f in FRAGMENT_FIELDS if f in fields))
-    computed = dict(zip((f for f in FRAGMENT_FIELDS if f in fields), out))
+        mode=mode, inner_test=inner_test, t_cap=t_cap, fields=ordered)
+    computed = dict(zip(ordered, out))
     return Fragments(**{f: computed.get(f) for f in FRAGMENT_FIELDS}, candidates=total)
 
 
