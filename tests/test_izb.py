@@ -134,6 +134,63 @@ def test_csm_min_area_draws_fewer_casters_and_stays_conservative():
     assert base["csm_culled"] > 0 and c["csm_culled"] == 0 and c["csm_texels"] == 0
 
 
+def _threshold_triangles(kind, seed):
+    """A light camera (R 64 over [-1, 1]^2 at y = 0) and 600 triangles of a few texels
+    around the covering sizes: random shapes and slivers (area above 2 texels, inradius
+    well below 1/2)."""
+    rng = np.random.default_rng(seed)
+    ground = np.stack(np.meshgrid(np.linspace(-1, 1, 5), [0.0], np.linspace(-1, 1, 5)),
+                      -1).reshape(-1, 3)
+    if kind == "ortho":
+        light = sl.DirectionalLight(direction=(0.2, -1.0, 0.1))
+        cam = fit_light_camera(light, ground, resolution=64)
+    else:
+        light = sl.PointLight(position=(0.1, 2.0, 0.2))
+        cam = fit_light_camera(light, ground, resolution=64, projection="perspective")
+    centre = rng.uniform(-0.8, 0.8, (600, 3)) * (1, 0, 1) + (0, 0.3, 0)
+    size = rng.uniform(0.02, 0.12, (600, 1, 1))         # texels are about 0.03 wide
+    tri = centre[:, None, :] + size * rng.normal(0, 1, (600, 3, 3))
+    d = rng.normal(0, 1, (200, 3)) * (1, 0, 1)
+    d *= rng.uniform(0.1, 0.4, (200, 1)) / np.linalg.norm(d, axis=1, keepdims=True)
+    side = np.cross(d, (0, 1, 0)) * rng.uniform(0.02, 0.15, (200, 1))
+    tri[:200] = np.stack([centre[:200], centre[:200] + d, centre[:200] + side], 1)
+    return cam, tri
+
+
+@pytest.mark.parametrize("kind", ["ortho", "persp"])
+def test_casters_the_csm_skips_cover_no_texel(kind):
+    """The CSM's caster skip (light-space area below 2 texels, or inradius below the
+    inner test's disk plus its margin) against the inner raster over every texel: no
+    skipped caster covers one, the inradius equals 2 area / perimeter of the projected
+    vertices, and casters within 1.5x of the bound do cover."""
+    from shadowlab.methods import izb
+    cam, tri = _threshold_triangles(kind, 4)
+    face = cam.faces[0]
+    st = lr.setup_face(face, tri)
+    front = st.front & st.ok
+    # the inradius from the projected vertices (texel coordinates)
+    _, uv, _, _ = lr.project_points(cam, tri.reshape(-1, 3))
+    uv = uv.reshape(-1, 3, 2)
+    e = [np.linalg.norm(uv[:, (i + 1) % 3] - uv[:, (i + 2) % 3], axis=1) for i in range(3)]
+    a, b = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    rin = izb.light_inradius(st)
+    np.testing.assert_allclose(rin[front], (2 * area / sum(e))[front], rtol=1e-9)
+    assert np.all(rin[~front] == 0)
+    ok = np.ones(len(tri), bool)
+    for test in lr.INNER_TESTS:
+        for tau in (0.0, 0.1):
+            covered = np.unique(lr.rasterize(cam, tri, "inner", test, tau)[0])
+            drawn, small = izb.csm_casters(st, ok, test, tau)
+            assert len(covered) > 20 and small > 100, (test, tau)
+            assert np.all(drawn[covered]), (test, tau)
+            # thin casters of area >= 2 are skipped by the inradius alone ...
+            assert np.sum((izb.light_area(st) >= 2) & ~drawn & front) > 20
+            # ... and a bound 1.5x larger would skip covering casters (the check can fail)
+            bound = izb.COVERING_RADIUS[test] + tau
+            assert rin[covered].min() < 1.5 * bound, (test, tau, rin[covered].min())
+
+
 def test_izb_refuses_the_prepass_with_the_cap_bias():
     scene, gbuf, light, _ = frame("steep")
     with pytest.raises(MethodError, match="prepass='csm' needs bias='receiver'"):

@@ -157,8 +157,9 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
             "texels culled by the farthest-node depth buffer"),
     Counter("csm_texels", "int", "CSM: occupied texels (holding a sample) fully covered by a "
             "caster, so holding a conservative depth"),
-    Counter("csm_small_casters", "int", "CSM: casters (per light face) not drawn because their "
-            "light-space area is below 2 texels, too small to cover a texel (an exact skip)"),
+    Counter("csm_small_casters", "int", "CSM: casters (per light face) not drawn because they "
+            "cannot cover a texel: light-space area below 2 texels, or inradius below the "
+            "inner test's disk plus its margin (thin casters; an exact skip)"),
     Counter("csm_culled", "int", "CSM: samples culled by the prepass (shadowed, not inserted)"),
     Counter("csm_culled_per_pixel", "map", "1 where the prepass culled the pixel's sample"),
     Counter("csm_false_shadows", "int", "CSM: culled samples that the exact test over every "

@@ -64,6 +64,14 @@ PAIR_CHUNK = 1 << 20
 #: circumscribed circle, 3 sqrt(3) / 2); the CSM skips smaller casters (exactly: they
 #: write no depth)
 COVERING_AREA = 2.0
+#: the radius of the largest disk inside what each inner coverage test needs inside the
+#: caster: the texel square's inscribed circle (corners) or its circumscribed circle
+#: (circle). A caster whose light-space inradius is below this radius plus the test's
+#: margin contains no such disk, so it covers no texel either (exactly: thin casters of
+#: any area, such as fur strands, write no depth)
+COVERING_RADIUS = {"corners": 0.5, "circle": lr.HALF_DIAGONAL}
+#: relative slack of both size tests: their float64 rounding, far below the raster's
+RELATIVE_SLACK = 1e-9
 
 
 def _shadowed(points, scale, planes, bound, node, tri):
@@ -428,6 +436,30 @@ def light_area(setup: lr.FaceSetup) -> np.ndarray:
     return np.where(front, setup.absdet / (2 * np.prod(w, axis=1)), 0.0)
 
 
+def light_inradius(setup: lr.FaceSetup) -> np.ndarray:
+    """float64 [T]: inradius (texels) of the projected triangles in front of the light on
+    a face, 2 area / perimeter = |D| / (norm_0 w_0 + norm_1 w_1 + norm_2 w_2) (edge row i
+    has norm w_j w_k times the length of the edge jk it holds); 0 for the others."""
+    front = setup.front & setup.ok
+    w = np.where(front[:, None], setup.vertex_w, 1.0)
+    perimeter_w = np.einsum("ij,ij->i", setup.norms, w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(front & (perimeter_w > 0), setup.absdet / perimeter_w, 0.0)
+
+
+def csm_casters(setup: lr.FaceSetup, ok_tri: np.ndarray, test: str, tau: float,
+                min_area: float = 0.0) -> tuple[np.ndarray, int]:
+    """The casters the CSM draws on a face: bool [T], and how many valid casters in
+    front of the light cannot cover a texel (light-space area below ``COVERING_AREA``
+    or inradius below ``COVERING_RADIUS[test] + tau``; not drawn, an exact skip)."""
+    drawn = ok_tri & setup.ok & setup.front
+    keep = 1.0 - RELATIVE_SLACK
+    area = light_area(setup)
+    covers = ((area >= COVERING_AREA * keep)
+              & (light_inradius(setup) >= (COVERING_RADIUS[test] + tau) * keep))
+    return drawn & covers & (area >= min_area), int(np.count_nonzero(drawn & ~covers))
+
+
 @functools.partial(jax.jit, static_argnames=("size",))
 def _csm_cull(slot, full, hi, slope_terms, inv, delta_q, margin, *, size):
     """bool [S] samples culled by the CSM of the inner fragments (``full`` [C]) over
@@ -446,7 +478,7 @@ def _csm_cull(slot, full, hi, slope_terms, inv, delta_q, margin, *, size):
 def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri, test,
          depth_mode, tau, eps, min_area=0.0):
     """bool [S] samples culled by the conservative shadow map, its full texels, and the
-    casters (per face) too small to cover a texel (``COVERING_AREA``), not drawn.
+    casters (per face) that cannot cover a texel (:func:`csm_casters`), not drawn.
     ``keys_inv``: the sorted texel keys [K] of the samples and each sample's index [S]."""
     r = cam.resolution[0]
     q, reaches = receiver_points(samples, light_h, eps)
@@ -464,10 +496,9 @@ def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri
     keys, inv = keys_inv
     select, small = [], 0
     for s in setups:
-        area, drawn = light_area(s), ok_tri & s.ok & s.front
-        covers = area >= COVERING_AREA * (1.0 - 1e-9)       # the slack: area's rounding
-        small += int(np.count_nonzero(drawn & ~covers))
-        select.append(drawn & covers & (area >= min_area))
+        drawn, n_small = csm_casters(s, ok_tri, test, tau, min_area)
+        select.append(drawn)
+        small += n_small
     s_cap = bucket(samples.count)
     with lr.x64():
         slope = depth_mode == "slope"
