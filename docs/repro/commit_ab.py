@@ -6,8 +6,9 @@ registry then calls the copy's own helpers), and this machine's speed drifts ove
 minutes. So each case runs in fresh processes, alternately on the working tree
 (``new``) and on a git worktree of ``BASE`` (``old``), ROUNDS times each. Every process
 renders the frame, calls the method 7 times and reports the median of the last 5 calls'
-stage times, a hash of the lit mask and scalar counters of the last call (which must
-agree between the arms; per-pixel counter maps are not hashed), the file its shadowlab
+stage times, a hash of the lit mask (which must agree between the arms) and the scalar
+counters of the last call (the summary names those that differ, with both arms' values;
+per-pixel counter maps are not compared), the file its shadowlab
 was imported from (checked against its tree) and the 1-minute load average before it
 started. Within a round ``new`` runs first.
 
@@ -36,9 +37,9 @@ view = default_view(name, scene)
 gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(1024, 1024)))
 runs = [sl.compute_shadows(scene, gbuf, view.light, method=method, **opts) for _ in range(7)]
 r = runs[-1]
-scalars = sorted((k, v) for k, v in r.counters.items() if np.ndim(v) == 0)
-digest = hashlib.sha1(np.packbits(r.lit).tobytes() + repr(scalars).encode()).hexdigest()
-print(json.dumps({"hash": digest[:12], "module": sl.__file__, "stages_ms": {
+scalars = {k: np.asarray(v).item() for k, v in r.counters.items() if np.ndim(v) == 0}
+digest = hashlib.sha1(np.packbits(r.lit).tobytes()).hexdigest()
+print(json.dumps({"lit_hash": digest[:12], "counters": scalars, "module": sl.__file__, "stages_ms": {
     k: round(1e3 * statistics.median(x.timings[k] for x in runs[2:]), 1) for k in r.timings}}))
 """
 
@@ -80,8 +81,12 @@ def main(base: str, rounds: int, out: str, cases: list[str]) -> None:
         arms = {a: [r for r in rows if r["case"] == case and r["arm"] == a]
                 for a in ("new", "old")}
         totals = {a: [r["stages_ms"]["total"] for r in v] for a, v in arms.items()}
-        hashes = {r["hash"] for v in arms.values() for r in v}
-        summary[case] = {"total_ms": totals, "identical_results": len(hashes) == 1,
+        hashes = {r["lit_hash"] for v in arms.values() for r in v}
+        counters = [r["counters"] for v in arms.values() for r in v]
+        differ = sorted(k for k in counters[0] if len({c.get(k) for c in counters}) > 1)
+        summary[case] = {"total_ms": totals, "identical_lit": len(hashes) == 1,
+                         "differing_counters": {k: {a: v[0]["counters"][k] for a, v in
+                                                    arms.items()} for k in differ},
                          "ratio_new_to_old": round(sum(totals["new"]) / sum(totals["old"]), 3)}
         print(case, summary[case])
     with open(out, "w") as f:
