@@ -289,20 +289,29 @@ def test_prepass_is_conservative_on_every_procedural_scene(name, precision):
 
 
 def test_chunked_pair_kernel_equals_one_chunk(monkeypatch):
-    """Tracing in many chunks of static capacity (the pair count exceeds the chunk) gives
-    the same lit mask and counters as one chunk: nothing is dropped at chunk borders."""
+    """Tracing in many chunks of static capacity (the pair count exceeds the chunk; with
+    a chunk of 1 pair, rows wider than a chunk run one per call) gives the same lit mask
+    and counters as one chunk: nothing is dropped at chunk borders."""
     from shadowlab.methods import izb as mizb
 
     scene, gbuf, light, truth = frame("steep")
     opts = dict(prepass="none", resolution=256)
     one = sl.compute_shadows(scene, gbuf, light, method="izb", **opts)
-    assert one.counters["tests"] > 3 * 128
-    monkeypatch.setattr(mizb, "PAIR_CHUNK", 128)
-    many = sl.compute_shadows(scene, gbuf, light, method="izb", **opts)
-    assert np.array_equal(one.lit, many.lit)
-    assert len(unexplained_mismatches(scene, gbuf, light, many.lit, truth)) == 0
-    for k in one.counters:
-        assert np.array_equal(np.asarray(one.counters[k]), np.asarray(many.counters[k])), k
+    assert one.counters["tests"] > 3 * 128 and one.counters["list_length_max"] > 1
+    for chunk in (128, 1):
+        monkeypatch.setattr(mizb, "PAIR_CHUNK", chunk)
+        many = sl.compute_shadows(scene, gbuf, light, method="izb", **opts)
+        assert np.array_equal(one.lit, many.lit)
+        assert len(unexplained_mismatches(scene, gbuf, light, many.lit, truth)) == 0
+        for k in one.counters:
+            assert np.array_equal(np.asarray(one.counters[k]), np.asarray(many.counters[k])), k
+
+
+def test_row_widths_are_the_lengths_rounded_up_to_powers_of_two():
+    from shadowlab.methods import izb as mizb
+
+    length = np.array([1, 2, 3, 4, 5, 8, 9, 1023, 1024, 1025])
+    assert mizb.row_widths(length).tolist() == [1, 2, 4, 4, 8, 8, 16, 1024, 1024, 2048]
 
 
 @pytest.mark.parametrize("precision", ["float32", "float64"])

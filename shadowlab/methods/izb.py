@@ -57,7 +57,7 @@ CSM_DEPTHS = ("corner", "slope")
 #: the poster's configuration: the method's ``preset="paper"``
 PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "csm_scale": 1,
                 "csm_min_area": 0.0}
-#: most (triangle, node) pairs tested in one call of the pair kernel
+#: most (triangle, node) pairs, padding included, tested in one call of the pair kernel
 PAIR_CHUNK = 1 << 20
 #: the least light-space area (texels) of a triangle that can cover a texel fully: the
 #: smallest triangle containing a unit square has area 2 (one containing the texel's
@@ -74,18 +74,28 @@ COVERING_RADIUS = {"corners": 0.5, "circle": lr.HALF_DIAGONAL}
 RELATIVE_SLACK = 1e-9
 
 
-def _shadowed(points, scale, planes, bound, node, tri):
-    """bool [P]: the per-sample test of ``brute_force`` (the same expressions) on the
-    pairs (node [P], tri [P])."""
+def _plane_terms(planes, bound, tri):
+    """The 16 plane coefficients [..] and the bound of triangles ``tri`` (int [..])."""
     # one gather per element (planes[tri, k]), not a row gather sliced afterwards: XLA on
     # the CPU materializes the [P, 16] rows then, and the pair test ran 2x slower
+    return [planes[tri, k] for k in range(16)], bound[tri]
+
+
+def _shadowed_by(points, scale, node, pl, bd):
+    """bool: the per-sample test of ``brute_force`` (the same expressions) of the nodes
+    ``node`` against triangles given by their plane terms (:func:`_plane_terms`,
+    broadcasting against ``node``)."""
     px, py, pz = (points[node, k] for k in range(3))
-    pl = [planes[tri, k] for k in range(16)]
     e0 = px * pl[0] + py * pl[1] + pz * pl[2] + pl[3]
     e1 = px * pl[4] + py * pl[5] + pz * pl[6] + pl[7]
     e2 = px * pl[8] + py * pl[9] + pz * pl[10] + pl[11]
     cap = px * pl[12] + py * pl[13] + pz * pl[14] + pl[15]
-    return (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap * scale[node] < bound[tri])
+    return (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (cap * scale[node] < bd)
+
+
+def _shadowed(points, scale, planes, bound, node, tri):
+    """bool [P]: :func:`_shadowed_by` on the pairs (node [P], tri [P])."""
+    return _shadowed_by(points, scale, node, *_plane_terms(planes, bound, tri))
 
 
 @jax.jit
@@ -104,25 +114,25 @@ def _depth_keep(slot, covered, lo, limit):
     return keep, (covered & ~keep).sum()
 
 
-@functools.partial(jax.jit, static_argnames=("capacity",))
-def _trace_pairs(first_k, tri_k, slot_k, lo, offset, total, start, order, points, scale,
-                 planes, bound, shadow, *, capacity):
-    """Pairs ``offset + arange(capacity)`` (of ``total``) of the kept fragments' runs
-    (compacted, then padded with runs that start beyond every pair, so they own none;
-    run f starts at ``first_k[f]``, run ``lo`` holds pair
-    ``offset``): every node of f's list against f's triangle; ``shadow`` (int8 [S])
-    accumulated. Only the ``capacity + 1`` runs from ``lo`` can hold the chunk's pairs
-    (every kept run has at least one), so only they are read."""
-    first = jax.lax.dynamic_slice_in_dim(first_k, lo, capacity + 1)
-    tri = jax.lax.dynamic_slice_in_dim(tri_k, lo, capacity + 1)
-    slot = jax.lax.dynamic_slice_in_dim(slot_k, lo, capacity + 1)
-    j = offset + jnp.arange(capacity, dtype=first.dtype)
-    frag = lr.segment_owner(first, capacity, offset)
-    valid = j < total
-    pos = jnp.where(valid, start[slot[frag]] + j - first[frag], 0)
-    node = order[pos]
-    hit = _shadowed(points, scale, planes, bound, node, tri[frag]) & valid
+@functools.partial(jax.jit, static_argnames=("width",))
+def _trace_rows(tri, first, length, order, points, scale, planes, bound, shadow, *, width):
+    """Kept fragments as rows of ``width`` pairs: fragment f (triangle ``tri`` [F]) tests
+    the nodes ``order[first[f] + l]``, l < ``length[f]`` <= width (its list); ``shadow``
+    (int8 [S]) accumulated. Each fragment's plane terms are gathered once for its row;
+    padding rows have length 0."""
+    lane = jnp.arange(width, dtype=first.dtype)
+    valid = lane[None, :] < length[:, None]
+    node = order[jnp.where(valid, first[:, None] + lane[None, :], 0)]          # [F, W]
+    pl, bd = _plane_terms(planes, bound, tri)
+    hit = _shadowed_by(points, scale, node, [x[:, None] for x in pl], bd[:, None]) & valid
     return shadow.at[node].max(hit.astype(jnp.int8))
+
+
+def row_widths(length: np.ndarray) -> np.ndarray:
+    """int64 [F]: the row width of each kept fragment, its list ``length`` (>= 1) rounded
+    up to a power of two (rows of one width share a compiled kernel; at most half of a
+    row is padding)."""
+    return np.left_shift(1, np.ceil(np.log2(length)).astype(np.int64))
 
 
 def pair_shadows(points, scale, planes, bound, node: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -350,8 +360,9 @@ class JaxEngine:
     @staticmethod
     def trace(frags: lr.Fragments, lists: Lists, points, scale, planes, bound, count):
         """Outer fragments ``frags`` (their smallest delta ``lo``): depth culling against
-        the farthest node, then every node of the list tested. Count, then fill: the
-        exact number of pairs sizes the pair kernel's chunks. Runs inside ``lr.x64()``.
+        the farthest node, then every node of the list tested: the kept fragments are
+        grouped by row width (:func:`row_widths`) and each group runs in chunks of at
+        most ``PAIR_CHUNK`` pairs (:func:`_trace_rows`). Runs inside ``lr.x64()``.
 
         Returns:
             shadow bool [count], tests per sample int64 [count], traced fragments,
@@ -360,27 +371,27 @@ class JaxEngine:
         k_cap = bucket(len(lists.length))
         keep, culled = _depth_keep(frags.slot, frags.covered, frags.lo,
                                    jnp.asarray(pad(lists.maxd + lists.maxm, k_cap)))
-        # the kept fragments' compaction and pair offsets on the host: a scan and a
-        # compaction over every candidate cost XLA on the CPU several times more
+        # the kept fragments' compaction on the host: a compaction over every candidate
+        # costs XLA on the CPU several times more
         kept = np.flatnonzero(np.asarray(keep)[: frags.candidates])
         slot = np.asarray(frags.slot)[kept]
-        pairs = lists.length[slot]
-        first = np.cumsum(pairs) - pairs
-        total, traced = int(pairs.sum()), len(kept)
-        start = jnp.asarray(pad(lists.start, k_cap))
-        order = jnp.asarray(pad(lists.order, bucket(len(lists.order))))
+        traced = len(kept)
         shadow = jnp.zeros(points.shape[0], jnp.int8)
-        cap = bucket(min(total, PAIR_CHUNK), minimum=min(1024, PAIR_CHUNK))
-        if total:
-            # each chunk reads only the runs that can hold its pairs, not every fragment
-            size = bucket(traced + cap + 1)
-            runs = (jnp.asarray(pad(first, size, fill=np.iinfo(first.dtype).max // 2)),
-                    jnp.asarray(pad(np.asarray(frags.tri)[kept], size)),
-                    jnp.asarray(pad(slot, size)))
-        for offset in range(0, total, cap):
-            lo = int(np.searchsorted(first, offset, side="right")) - 1
-            shadow = _trace_pairs(*runs, lo, offset, total, start, order, points, scale,
-                                  planes, bound, shadow, capacity=cap)
+        if traced:
+            order = jnp.asarray(pad(lists.order, bucket(len(lists.order))))
+            tri = np.asarray(frags.tri)[kept]
+            first, length = lists.start[slot], lists.length[slot]
+            width = row_widths(length)
+            for w in np.unique(width):
+                rows = np.flatnonzero(width == w)
+                step = max(1, PAIR_CHUNK // int(w))
+                for s0 in range(0, len(rows), step):
+                    part = rows[s0: s0 + step]
+                    n = bucket(len(part), minimum=min(64, step))
+                    shadow = _trace_rows(jnp.asarray(pad(tri[part], n)),
+                                         jnp.asarray(pad(first[part], n)),
+                                         jnp.asarray(pad(length[part], n)), order, points,
+                                         scale, planes, bound, shadow, width=int(w))
         # every node of a list is tested once by each kept fragment of its texel (no
         # scatter per pair)
         tests = np.zeros(count, np.int64)
