@@ -59,6 +59,9 @@ PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "
                 "csm_min_area": 0.0}
 #: most (triangle, node) pairs, padding included, tested in one call of the pair kernel
 PAIR_CHUNK = 1 << 20
+#: row capacities per octave of the pair kernel's last chunk of each width
+#: (:func:`core.capacity.bucket`): at most 1/5 of it is padding
+ROW_BUCKET_STEPS = 4
 #: the least light-space area (texels) of a triangle that can cover a texel fully: the
 #: smallest triangle containing a unit square has area 2 (one containing the texel's
 #: circumscribed circle, 3 sqrt(3) / 2); the CSM skips smaller casters (exactly: they
@@ -387,7 +390,7 @@ class JaxEngine:
                 step = max(1, PAIR_CHUNK // int(w))
                 for s0 in range(0, len(rows), step):
                     part = rows[s0: s0 + step]
-                    n = bucket(len(part), minimum=min(64, step))
+                    n = bucket(len(part), minimum=min(64, step), steps=ROW_BUCKET_STEPS)
                     shadow = _trace_rows(jnp.asarray(pad(tri[part], n)),
                                          jnp.asarray(pad(first[part], n)),
                                          jnp.asarray(pad(length[part], n)), order, points,
