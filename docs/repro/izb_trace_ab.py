@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 import shadowlab as sl
-from shadowlab.methods import izb
+from shadowlab.methods import izb, registry
 from shadowlab.scene.procedural import default_view
 from shadowlab.structures import light_raster as lr
 
@@ -47,18 +47,26 @@ def captured_trace_args(name: str, params: dict) -> tuple:
         sl.compute_shadows(scene, gbuf, view.light, method="izb", verify=False)
     finally:
         izb.JaxEngine.trace = staticmethod(trace)
+    if "args" not in captured:
+        raise SystemExit("the izb frame did not call the working tree's JaxEngine.trace")
     return captured["args"]
 
 
 def base_module(base: str, tmp: str):
-    """The base commit's izb module, loaded under another name."""
+    """The base commit's izb module, loaded under another name (its ``register`` call
+    would replace the working tree's ``izb`` in the method registry: the entry is put
+    back, so that frames still run the working tree's method)."""
     path = os.path.join(tmp, "izb_base.py")
     with open(path, "w") as f:
         f.write(subprocess.check_output(["git", "show", f"{base}:shadowlab/methods/izb.py"],
                                         text=True))
     spec = importlib.util.spec_from_file_location("shadowlab.methods._izb_base", path)
     mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    entry = registry._REGISTRY["izb"]
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        registry._REGISTRY["izb"] = entry
     return mod
 
 
