@@ -191,6 +191,44 @@ def test_casters_the_csm_skips_cover_no_texel(kind):
             assert rin[covered].min() < 1.5 * bound, (test, tau, rin[covered].min())
 
 
+@pytest.mark.parametrize("light_name", ["steep", "inside", "above"])
+def test_csm_prefilter_culls_what_every_receiver_point_would(light_name, monkeypatch):
+    """The CSM computes q only for samples whose own delta lies beyond their texel's
+    depth (delta(q) <= delta(p)); the culled set equals the comparison of every sample's
+    q (computed here for all of them, as before the prefilter)."""
+    from shadowlab.methods import izb as mizb
+
+    seen = {}
+    csm, depths = mizb._csm, mizb._csm_depths
+
+    def spy_csm(*args, **kw):
+        out = csm(*args, **kw)
+        seen["args"], seen["out"] = args, out
+        return out
+
+    def spy_depths(*args, **kw):
+        out = depths(*args, **kw)
+        seen["depth"] = np.asarray(out[0])
+        return out
+
+    monkeypatch.setattr(mizb, "_csm", spy_csm)
+    monkeypatch.setattr(mizb, "_csm_depths", spy_depths)
+    extra = {"projection": "cube"} if light_name == "inside" else {}
+    res = _run(light_name, "float32", resolution=256, **extra)
+    cam, _, samples, light_h, face, (_, inv), delta_p, m_delta, *_, eps = seen["args"][:13]
+    q, reaches = mizb.receiver_points(samples.position, samples.normal, light_h, eps)
+    delta_q = np.empty(samples.count)
+    for f in np.unique(face):
+        sel = face == f
+        delta_q[sel] = lr.face_depth(cam.faces[f], cam.faces[f].depth(q[sel]))
+    delta_q = np.where(reaches | ~np.isfinite(delta_q), -np.inf, delta_q)
+    every = delta_q > seen["depth"][inv] + m_delta
+    assert every.sum() > 0 and res.counters["csm_false_shadows"] == 0
+    assert np.array_equal(seen["out"][0], every)
+    # the prefilter leaves most samples out (the check is not vacuous either way)
+    assert np.count_nonzero(delta_p + m_delta > seen["depth"][inv]) < samples.count
+
+
 def test_izb_refuses_the_prepass_with_the_cap_bias():
     scene, gbuf, light, _ = frame("steep")
     with pytest.raises(MethodError, match="prepass='csm' needs bias='receiver'"):

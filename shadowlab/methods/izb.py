@@ -417,22 +417,23 @@ def _empty_counters(shape) -> dict:
             "csm_false_shadows": 0}
 
 
-def receiver_points(samples, light_h: np.ndarray, eps: float
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """float64 [S, 3]: q = p + (eps / (n . l)) l, the receiver-biased point on the ray from
-    each sample p to the light (l the unit direction to the light), where the exact
-    methods' receiver bias puts the crossing (``shadowlab.core.frame.bias_terms``); and
-    bool [S], the samples whose cut reaches a point light (q is the light itself: lit by
-    the reference's criterion, whatever lies in front of the light)."""
-    p = samples.position
-    # one [S, 3] buffer, updated in place (the same operations in the same order as
+def receiver_points(position: np.ndarray, normal: np.ndarray, light_h: np.ndarray,
+                    eps: float) -> tuple[np.ndarray, np.ndarray]:
+    """float64 [N, 3]: q = p + (eps / (n . l)) l, the receiver-biased point on the ray from
+    each sample p (``position`` [N, 3], ``normal`` [N, 3]) to the light (l the unit
+    direction to the light), where the exact methods' receiver bias puts the crossing
+    (``shadowlab.core.frame.bias_terms``); and bool [N], the samples whose cut reaches a
+    point light (q is the light itself: lit by the reference's criterion, whatever lies
+    in front of the light)."""
+    p = position
+    # one [N, 3] buffer, updated in place (the same operations in the same order as
     # L.xyz - L.w p, / |.|, p + step l: the same bits; fresh 24 MB arrays at 1M samples
     # cost more in page faults than the arithmetic)
     buf = np.multiply(p, light_h[3])
     np.subtract(light_h[:3], buf, out=buf)                      # to the light
     dist = norms3(buf)
     l = np.divide(buf, dist[:, None], out=buf)
-    cos = np.maximum(np.einsum("ij,ij->i", samples.normal, l), 1e-12)
+    cos = np.maximum(np.einsum("ij,ij->i", normal, l), 1e-12)
     step = eps / cos
     reaches = np.zeros(len(p), bool)
     if light_h[3] != 0:   # never past the light
@@ -475,9 +476,9 @@ def csm_casters(setup: lr.FaceSetup, ok_tri: np.ndarray, test: str, tau: float,
 
 
 @functools.partial(jax.jit, static_argnames=("size",))
-def _csm_cull(slot, full, hi, slope_terms, inv, delta_q, margin, *, size):
-    """bool [S] samples culled by the CSM of the inner fragments (``full`` [C]) over
-    ``size`` texels (sample texel ``inv`` [S]), and the number of texels with a depth.
+def _csm_depths(slot, full, hi, slope_terms, *, size):
+    """float64 [size]: the CSM of the inner fragments (``full`` [C]) over ``size`` texels
+    (+inf where no fragment covers a texel), and the number of texels with a depth.
     ``slope_terms``: None for the corner depth (``hi`` [C]), or the fragments' (centre,
     slope) [C] for the poster's slope-scaled depth."""
     if slope_terms is None:
@@ -486,43 +487,50 @@ def _csm_cull(slot, full, hi, slope_terms, inv, delta_q, margin, *, size):
         centre, gslope = slope_terms
         cons = jnp.maximum(centre + gslope, hi)
     csm = jnp.full(size, jnp.inf).at[slot].min(jnp.where(full, cons, jnp.inf))
-    return delta_q > csm[inv] + margin, jnp.isfinite(csm).sum()
+    return csm, jnp.isfinite(csm).sum()
 
 
 def _csm(cam, setups, samples, light_h, face, keys_inv, delta_p, m_delta, ok_tri, test,
          depth_mode, tau, eps, min_area=0.0):
     """bool [S] samples culled by the conservative shadow map, its full texels, and the
     casters (per face) that cannot cover a texel (:func:`csm_casters`), not drawn.
-    ``keys_inv``: the sorted texel keys [K] of the samples and each sample's index [S]."""
+    ``keys_inv``: the sorted texel keys [K] of the samples and each sample's index [S];
+    ``delta_p`` [S]: the samples' delta, ``m_delta`` [S] their depth margins."""
     r = cam.resolution[0]
-    q, reaches = receiver_points(samples, light_h, eps)
-    # q's depth along the face axis only (LightFace.depth rounds as project does)
-    if len(cam.faces) == 1:
-        delta_q = lr.face_depth(cam.faces[0], cam.faces[0].depth(q))
-    else:
-        delta_q = np.empty(samples.count)
-        for f in np.unique(face):
-            sel = face == f
-            delta_q[sel] = lr.face_depth(cam.faces[f], cam.faces[f].depth(q[sel]))
-    # A cut that reaches the light puts q on the light's plane (delta -> +-inf): such a
-    # sample is lit (the reference's tfar = max(length - cut, 0)), so it is never culled.
-    delta_q = np.where(reaches | ~np.isfinite(delta_q), -np.inf, delta_q)
     keys, inv = keys_inv
     select, small = [], 0
     for s in setups:
         drawn, n_small = csm_casters(s, ok_tri, test, tau, min_area)
         select.append(drawn)
         small += n_small
-    s_cap = bucket(samples.count)
     with lr.x64():
         slope = depth_mode == "slope"
         fr = lr.raster(setups, keys, r, "inner", test, tau, select,
                        fields=("slot", "covered", "hi") + (("centre", "slope") if slope else ()))
-        culled, texels = _csm_cull(
-            fr.slot, fr.covered, fr.hi, (fr.centre, fr.slope) if slope else None,
-            jnp.asarray(pad(inv, s_cap)), jnp.asarray(pad(delta_q, s_cap, fill=-np.inf)),
-            jnp.asarray(pad(m_delta, s_cap)), size=bucket(len(keys)))
-        return np.asarray(culled)[: samples.count], int(texels), small
+        csm, texels = _csm_depths(fr.slot, fr.covered, fr.hi,
+                                  (fr.centre, fr.slope) if slope else None,
+                                  size=bucket(len(keys)))
+        depth = np.asarray(csm)[inv]
+    # q lies between p and the light, so delta(q) <= delta(p) (both depth conventions
+    # grow away from the light): only a sample with delta(p) beyond its texel's depth
+    # can be culled. The prefilter keeps one more margin for the rounding of delta(q).
+    cand = np.flatnonzero(delta_p + m_delta > depth)
+    q, reaches = receiver_points(samples.position[cand], samples.normal[cand], light_h, eps)
+    # q's depth along the face axis only (LightFace.depth rounds as project does)
+    if len(cam.faces) == 1:
+        delta_q = lr.face_depth(cam.faces[0], cam.faces[0].depth(q))
+    else:
+        delta_q = np.empty(len(cand))
+        fc = face[cand]
+        for f in np.unique(fc):
+            sel = fc == f
+            delta_q[sel] = lr.face_depth(cam.faces[f], cam.faces[f].depth(q[sel]))
+    # A cut that reaches the light puts q on the light's plane (delta -> +-inf): such a
+    # sample is lit (the reference's tfar = max(length - cut, 0)), so it is never culled.
+    delta_q = np.where(reaches | ~np.isfinite(delta_q), -np.inf, delta_q)
+    culled = np.zeros(samples.count, bool)
+    culled[cand] = delta_q > depth[cand] + m_delta[cand]
+    return culled, int(texels), small
 
 
 def _verify(culled, samples, points, scale, planes, bound, num_triangles, dtype) -> int:
