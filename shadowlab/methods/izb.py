@@ -250,10 +250,13 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
             keys_all, inv_all = lr.unique_keys(key, len(cam.faces) * r * r)
             setups = [lr.setup_face(f, scene.triangles) for f in cam.faces]
             tw = float(lr.texel_world_size(cam, face=face, depth=depth_p).min())
-            extent = np.concatenate([scene.triangles.reshape(-1, 3), samples.position])
+            # the largest world coordinate of the casters and the samples (no [T + S, 3]
+            # concatenation: each array's own maximum)
+            extent = np.array([np.abs(scene.triangles).max(initial=0.0),
+                               np.abs(samples.position).max(initial=0.0)])
             tau = coverage_margin + lr.rounding_margin(dtype, extent, tw)
             # depth margin (delta units per sample): rounding of world coordinates
-            m_world = 64.0 * float(np.finfo(dtype).eps) * float(np.abs(extent).max())
+            m_world = 64.0 * float(np.finfo(dtype).eps) * float(extent.max())
             m_delta = _delta_slope(cam, delta_p) * m_world
 
         culled = np.zeros(s_count, bool)
@@ -292,8 +295,8 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
             order = lists.order
             for f, st in enumerate(setups):
                 odd = np.flatnonzero(ok_tri & (st.absdet == 0) & np.any(st.vertex_w > 0, axis=1))
-                fn = order[face[order] == f]
-                if len(odd) and len(fn):
+                fn = order[face[order] == f] if len(odd) else order[:0]
+                if len(fn):
                     pn, pt = np.tile(fn, len(odd)), np.repeat(odd, len(fn))
                     shadow |= pair_shadows(points, scale_j, planes, bound_j, pn, pt)[:s_count]
                     tests_per += np.bincount(pn, minlength=s_count)
