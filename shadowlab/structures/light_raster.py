@@ -464,7 +464,8 @@ class Fragments:
     """Fragments of a :func:`raster` call, as JAX arrays padded to a static capacity.
 
     Attributes:
-        tri, slot: int64 [C] triangle and index into the raster's keys;
+        tri: int64 [C] triangle; slot: int32 [C] index into the raster's keys (0 on the
+            padding);
         covered: bool [C] the coverage test passed (False on the padding);
         lo, hi, centre: float64 [C] the depth plane's min, max and centre over the texel;
         slope: float64 [C] max(|d delta / du|, |d delta / dv|) (per texel);
@@ -498,38 +499,20 @@ def x64():
     return jax.enable_x64(True)
 
 
-def segment_owner(first, capacity: int, offset=0):
-    """int [capacity]: for positions ``offset + arange(capacity)`` of consecutive runs
-    starting at the non-decreasing ``first`` [M] (traced), the last run starting at or
-    before each position (a scatter of the starts and a running sum; a run of length 0
-    is followed by one with the same start, so it never owns a position)."""
-    at = jnp.clip(first - offset, 0, None)
-    marks = jnp.zeros(capacity, jnp.int32).at[at].add(1, mode="drop")
-    return jnp.maximum(running_sum(marks) - 1, 0)
-
-
-def running_sum(x):
-    """Inclusive prefix sum [N] of ``x`` [N] (traced): an associative scan, several times
-    faster than ``jnp.cumsum`` (a reduce-window) under XLA on the CPU."""
-    return jax.lax.associative_scan(jnp.add, x)
-
-
 #: the per-fragment arrays of :class:`Fragments`, in its order
 FRAGMENT_FIELDS = ("tri", "slot", "covered", "lo", "hi", "centre", "slope")
 
 
-@functools.partial(jax.jit, static_argnames=("capacity", "resolution", "mode", "inner_test",
-                                             "t_cap", "fields"))
-def _raster_kernel(ft, first, count, keys, unit, depth, tau, *, capacity, resolution, mode,
+@functools.partial(jax.jit, static_argnames=("resolution", "mode", "inner_test", "t_cap",
+                                             "fields"))
+def _raster_kernel(seg, slot, ft, keys, unit, depth, tau, *, resolution, mode,
                    inner_test, t_cap, fields):
-    """The fill pass: fragment i of the segments' runs, its texel, coverage and depth
-    range (see :class:`Fragments`), only the arrays ``fields`` (the others are never
-    written: each is a full [C] pass of memory)."""
-    start = running_sum(count) - count
-    i = jnp.arange(capacity, dtype=start.dtype)
-    seg = segment_owner(start, capacity)
-    valid = i < start[-1] + count[-1]
-    slot = jnp.where(valid, first[seg] + i - start[seg], 0)
+    """The fill pass: fragment i (its segment ``seg`` [C] and key index ``slot`` [C], -1
+    for padding), its texel, coverage and depth range (see :class:`Fragments`), only the
+    arrays ``fields`` (the others are never written: each is a full [C] pass of memory).
+    Padding fragments are not covered and have slot 0."""
+    valid = slot >= 0
+    slot = jnp.maximum(slot, 0)
     ftv = ft[seg]
     key = keys[slot]
     col, row = key % resolution, (key // resolution) % resolution
@@ -574,15 +557,22 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
         depth[f * t_cap: f * t_cap + len(s.depth)] = s.depth
     total = int(count.sum())
     m_cap = bucket(len(count), minimum=256)
-    # segment_owner numbers the segments with an int32 running sum
-    check_int32(m_cap, "light-raster row segments", "use a smaller light resolution or "
-                "fewer casters")
+    capacity = bucket(total, steps=FRAGMENT_BUCKET_STEPS)
+    # fragments index segments and keys in int32
+    check_int32(max(m_cap, len(keys)), "light-raster row segments and texel keys",
+                "use a smaller light resolution or fewer casters")
+    # each fragment's segment and key index, expanded on the host: a scatter of the run
+    # starts and a scan over the capacity cost XLA on the CPU more than np.repeat
+    seg = np.zeros(capacity, np.int32)
+    seg[:total] = np.repeat(np.arange(len(count), dtype=np.int32), count)
+    slot = np.full(capacity, -1, np.int32)
+    slot[:total] = np.repeat((first - (np.cumsum(count) - count)).astype(np.int32), count)
+    slot[:total] += np.arange(total, dtype=np.int32)
     out = _raster_kernel(
-        jnp.asarray(pad(face * t_cap + tri, m_cap)), jnp.asarray(pad(first, m_cap)),
-        jnp.asarray(pad(count, m_cap)), jnp.asarray(pad(keys, bucket(len(keys)))),
-        jnp.asarray(unit), jnp.asarray(depth), jnp.asarray(tau, jnp.float64),
-        capacity=bucket(total, steps=FRAGMENT_BUCKET_STEPS), resolution=int(resolution),
-        mode=mode, inner_test=inner_test, t_cap=t_cap, fields=ordered)
+        jnp.asarray(seg), jnp.asarray(slot), jnp.asarray(pad(face * t_cap + tri, m_cap)),
+        jnp.asarray(pad(keys, bucket(len(keys)))), jnp.asarray(unit), jnp.asarray(depth),
+        jnp.asarray(tau, jnp.float64), resolution=int(resolution), mode=mode,
+        inner_test=inner_test, t_cap=t_cap, fields=ordered)
     computed = dict(zip(ordered, out))
     return Fragments(**{f: computed.get(f) for f in FRAGMENT_FIELDS}, candidates=total)
 
