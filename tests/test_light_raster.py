@@ -443,8 +443,8 @@ def test_narrow_width_follows_each_faces_key_density(monkeypatch):
     width = setup.bbox[:, 1] - setup.bbox[:, 0] + 1
     assert np.any((width >= 8) & (width < 16))
     seen = []
-    real = lr.span_terms
-    monkeypatch.setattr(lr, "span_terms", lambda unit, box, *a, **k: (
+    real = lr.row_spans
+    monkeypatch.setattr(lr, "row_spans", lambda unit, box, *a, **k: (
         seen.append(box[:, 1] - box[:, 0] + 1), real(unit, box, *a, **k))[1])
     keys = np.concatenate([np.arange(R * R), R * R + np.arange(0, R * R, 64)])
     lr.candidates([setup, setup], keys, R, None, "outer", "corners", 1e-3)

@@ -257,40 +257,26 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
         if select is not None:
             use &= select[f]
         t = np.flatnonzero(use)
-        bt = b[t]
-        nrows = bt[:, 3] - bt[:, 2] + 1
-        owner = np.repeat(np.arange(len(t), dtype=np.int32), nrows)
-        row = (bt[:, 2].astype(np.int32)[owner] + run_offsets(nrows)).astype(np.int32)
-        # per triangle the span terms: the box's columns, and bounds from the edges for
-        # boxes at least min_columns wide
-        lo_none, hi_none = np.full(len(t), -np.inf), np.full(len(t), np.inf)
-        zero = np.zeros(len(t))
-        terms = [bt[:, 0].astype(np.float64), bt[:, 1].astype(np.float64)]
-        terms += [lo_none, zero] * 3 + [hi_none, zero] * 3
+        nrows = b[t, 3] - b[t, 2] + 1
+        rt = np.repeat(t, nrows)
+        row = b[rt, 2] + run_offsets(nrows)
+        col0, col1 = b[rt, 0], b[rt, 1]
         if mode is not None:
-            wide = np.flatnonzero(bt[:, 1] - bt[:, 0] + 1 >= min_columns)
-            if len(wide):
-                narrowed = span_terms(st.unit[t[wide]], bt[wide], mode, inner_test, tau, eps)
-                terms = [x.copy() for x in terms]
-                for x, y in zip(terms[2:], narrowed[2:]):
-                    x[wide] = y
-        t_cap, m_cap = bucket(len(t), minimum=16), bucket(len(row), minimum=1024)
-        with x64():
-            args = (tuple(jnp.asarray(pad(x, t_cap)) for x in terms),
-                    jnp.asarray(pad(owner, m_cap)))
-            if rank is None:        # binary searches of the spans' columns
-                lo, hi = (np.asarray(x)[: len(row)] for x in _span_rows(
-                    *args, jnp.asarray(pad(row, m_cap, dtype=np.float64))))
-                base = (f * r + row.astype(np.int64)) * r
-                first = np.searchsorted(keys, base + lo, side="left")
-                end = np.searchsorted(keys, base + hi, side="right")
-            else:                   # the same indices: the number of keys below each end
-                first, end = (np.asarray(x)[: len(row)] for x in _row_runs(
-                    *args, jnp.asarray(pad(row, m_cap)), jnp.asarray(f * r, jnp.int64),
-                    *rank.device, resolution=r))
-        keep = np.flatnonzero(end > first)
-        out.append((np.full(len(keep), f), t[owner[keep]], first[keep],
-                    (end - first)[keep]))
+            wide = b[t, 1] - b[t, 0] + 1 >= min_columns
+            if wide.any():
+                rows_of_wide = np.repeat(wide, nrows)
+                tw = t[wide]
+                col0[rows_of_wide], col1[rows_of_wide] = row_spans(
+                    st.unit[tw], b[tw], np.repeat(np.arange(len(tw)), nrows[wide]),
+                    row[rows_of_wide], mode, inner_test, tau, eps)
+        base = (f * r + row) * r
+        if rank is None:
+            lo = np.searchsorted(keys, base + col0, side="left")
+            hi = np.searchsorted(keys, base + col1, side="right")
+        else:           # the same indices: the number of keys below each end
+            lo, hi = rank(base + col0, base + col1 + 1)
+        keep = hi > lo
+        out.append((np.full(int(keep.sum()), f), rt[keep], lo[keep], (hi - lo)[keep]))
     return tuple(np.concatenate([o[i] for o in out]).astype(np.int64) for i in range(4))
 
 
@@ -315,7 +301,7 @@ class KeyRank:
         self.before = np.zeros(n_words, np.int64)
         np.cumsum(np.bincount(word_of, minlength=n_words)[:-1], out=self.before[1:])
         with x64():
-            self.device = (jnp.asarray(self.words), jnp.asarray(self.before))
+            self._device = (jnp.asarray(self.words), jnp.asarray(self.before))
 
     def __call__(self, *xs: np.ndarray) -> tuple[np.ndarray, ...] | np.ndarray:
         """int64 [N] per argument: the number of keys < x, for int64 x [N] in [0, size]
@@ -323,7 +309,7 @@ class KeyRank:
         n = len(xs[0])
         cap = bucket(n, minimum=1024)
         with x64():
-            out = _rank(*self.device, tuple(jnp.asarray(pad(x, cap, dtype=np.int64))
+            out = _rank(*self._device, tuple(jnp.asarray(pad(x, cap, dtype=np.int64))
                                              for x in xs))
             out = tuple(np.asarray(r)[:n] for r in out)
         return out if len(xs) > 1 else out[0]
@@ -382,13 +368,13 @@ def row_spans(unit: np.ndarray, box: np.ndarray, owner: np.ndarray, row: np.ndar
     At a fixed row every edge's test (:func:`coverage_terms`) is affine in the column,
     ``a col + K(row) >= 0``, so the passing columns of a row form one interval: a lower
     bound from each edge with a > 0, an upper one from each edge with a < 0 (an edge
-    with a = 0 bounds no column). Each bound, ``alpha + beta row`` per triangle and edge
-    (:func:`span_terms`), is widened by the rounding of both this evaluation and the
-    coverage test's (relative ``eps``, the evaluation dtype's, times the magnitude of the
-    terms over the box, in columns) and then by one more column, so the interval holds
-    every column the test can accept and the test still decides each fragment. Thin
-    triangles across many rows (fur strands) cover few of their box's texels: the
-    raster then fills and tests only those.
+    with a = 0 bounds no column). Each bound, ``alpha + beta row`` per triangle and edge,
+    is widened by the rounding of both this evaluation and the coverage test's
+    (relative ``eps``, the evaluation dtype's, times the magnitude of the terms over the
+    box, in columns) and then by one more column, so the interval holds every column
+    the test can accept and the test still decides each fragment. Thin triangles across
+    many rows (fur strands) cover few of their box's texels: the raster then fills and
+    tests only those.
 
     Args:
         unit: float64 [T, 3, 3] the triangles' unit edge rows (``FaceSetup.unit``);
@@ -399,20 +385,6 @@ def row_spans(unit: np.ndarray, box: np.ndarray, owner: np.ndarray, row: np.ndar
         (lo, hi) int64 [M] within [col0 - 1, col1 + 1] of the row's box; lo > hi for a
         row with no passing column.
     """
-    terms = span_terms(unit, box, mode, inner_test, tau, eps)
-    t_cap, m_cap = bucket(len(box), minimum=16), bucket(len(row), minimum=1024)
-    with x64():
-        lo, hi = _span_rows(tuple(jnp.asarray(pad(x, t_cap)) for x in terms),
-                            jnp.asarray(pad(owner, m_cap, dtype=np.int64)),
-                            jnp.asarray(pad(row, m_cap, dtype=np.float64)))
-        return np.asarray(lo)[: len(row)], np.asarray(hi)[: len(row)]
-
-
-def span_terms(unit: np.ndarray, box: np.ndarray, mode: str, inner_test: str = "corners",
-               tau: float = 0.0, eps: float = EPS64) -> list[np.ndarray]:
-    """The per-triangle terms of :func:`row_spans` (float64 [T] each, 14): col0, col1,
-    then (alpha, beta) of each edge's lower bound on the columns, then of each edge's
-    upper bound (-inf / +inf and 0 where an edge bounds no column)."""
     s, sign_tau, const = coverage_terms(mode, inner_test)
     thr = const + sign_tau * float(tau)
     col0, col1 = box[:, 0].astype(np.float64), box[:, 1].astype(np.float64)
@@ -436,12 +408,22 @@ def span_terms(unit: np.ndarray, box: np.ndarray, mode: str, inner_test: str = "
                          np.where(ok & (a > 0), beta, 0.0)))
             hi_t.append((np.where(ok & (a < 0), alpha + slack, np.inf),
                          np.where(ok & (a < 0), beta, 0.0)))
-    return [col0, col1] + [x for pair in lo_t + hi_t for x in pair]
+    # per row: one fused pass (gathers of the per-triangle terms, products, rounding,
+    # clamps) instead of some forty NumPy passes over the rows
+    t_cap, m_cap = bucket(len(col0), minimum=16), bucket(len(row), minimum=1024)
+    terms = [col0, col1] + [x for pair in lo_t + hi_t for x in pair]
+    with x64():
+        lo, hi = _span_rows(tuple(jnp.asarray(pad(x, t_cap)) for x in terms),
+                            jnp.asarray(pad(owner, m_cap, dtype=np.int64)),
+                            jnp.asarray(pad(row, m_cap, dtype=np.float64)))
+        return np.asarray(lo)[: len(row)], np.asarray(hi)[: len(row)]
 
 
-def _span_columns(terms, owner, y):
-    """(lo, hi) float64 [M]: the span of each row (:func:`row_spans`) from the gathered
-    per-triangle terms (traced)."""
+@jax.jit
+def _span_rows(terms, owner, y):
+    """(lo, hi) int64 [M] of :func:`row_spans` from the per-triangle terms (float64 [T]:
+    col0, col1, then alpha and beta of each edge's lower bound, then of its upper
+    bound), each row's triangle ``owner`` [M] and row ``y`` [M] (float64)."""
     def g(x):
         return x.at[owner].get(mode="promise_in_bounds")
 
@@ -450,28 +432,9 @@ def _span_columns(terms, owner, y):
     for i in range(3):
         lo = jnp.maximum(lo, jnp.ceil(g(terms[2 + 2 * i]) + g(terms[3 + 2 * i]) * y))
         hi = jnp.minimum(hi, jnp.floor(g(terms[8 + 2 * i]) + g(terms[9 + 2 * i]) * y))
-    return jnp.minimum(lo, col1 + 1), jnp.maximum(hi, col0 - 1)
-
-
-@jax.jit
-def _span_rows(terms, owner, y):
-    """(lo, hi) int64 [M] of :func:`row_spans` from the per-triangle terms (float64 [T]:
-    :func:`span_terms`), each row's triangle ``owner`` [M] and row ``y`` [M] (float64)."""
-    lo, hi = _span_columns(terms, owner, y)
+    lo = jnp.minimum(lo, col1 + 1)
+    hi = jnp.maximum(hi, col0 - 1)
     return lo.astype(jnp.int64), hi.astype(jnp.int64)
-
-
-@functools.partial(jax.jit, static_argnames=("resolution",))
-def _row_runs(terms, owner, row, face_row, words, before, *, resolution):
-    """(first, end) int64 [M]: the key ranks of each row's span (:func:`_span_columns`;
-    ``row`` [M] int32 within the face, whose first row over all faces is ``face_row``)
-    by :class:`KeyRank`'s lookup; the row's run of keys is ``first .. end - 1`` (empty
-    where end <= first)."""
-    lo, hi = _span_columns(terms, owner, row.astype(jnp.float64))
-    base = (face_row + row.astype(jnp.int64)) * resolution
-    first, end = _rank(words, before, (base + lo.astype(jnp.int64),
-                                       base + hi.astype(jnp.int64) + 1))
-    return first, end
 
 
 def candidates(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
