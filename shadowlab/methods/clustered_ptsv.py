@@ -195,10 +195,7 @@ def _leaf_chunk(cfg, a, tri, leaf, ok, tile_shadow, tile_tests):
     """Test-and-set of leaf jobs (tri, leaf) [C]: every sample of the leaf's tile (or of
     its cluster), with the exact world-space test of ``brute_force``; the tile's samples
     are gathered once per job (tile-major arrays) and OR-reduced per sample by a row
-    scatter-max into [tiles, P]. ``tile_tests``: the test-and-sets per sample, int32
-    [tiles, P], when only the cluster's samples are tested; else the jobs per tile,
-    int32 [tiles] (each tests every valid sample of its tile: :func:`_finish` expands
-    them, and the loop adds one count per job instead of a row of P)."""
+    scatter-max into [tiles, P]."""
     tile = _tile_of(cfg["tree"], leaf)
     x, y, z = a["tile_x"][tile], a["tile_y"][tile], a["tile_z"][tile]   # [C, P]
     m = a["tile_valid"][tile] & ok[:, None]
@@ -212,10 +209,7 @@ def _leaf_chunk(cfg, a, tri, leaf, ok, tile_shadow, tile_tests):
     inside = (e0 >= 0) & (e1 >= 0) & (e2 >= 0) & (
         cap * a["tile_scale"][tile] < a["bound"][tri][:, None])
     tile_shadow = tile_shadow.at[tile].max(inside & m)
-    if cfg["cluster_only"]:
-        tile_tests = tile_tests.at[tile].add(m.astype(jnp.int32))
-    else:
-        tile_tests = tile_tests.at[tile].add(ok.astype(jnp.int32))
+    tile_tests = tile_tests.at[tile].add(m.astype(jnp.int32))
     return tile_shadow, tile_tests
 
 
@@ -231,8 +225,7 @@ class PlaneNodeTests:
     ``data`` = (params, arrays) where params are the tree's camera floats
     (:func:`tree_params`) and arrays the dict of :func:`flat_hierarchy` plus the planes,
     tolerances, bounds and tile-major samples (see ``run_traversal_method``). The leaf
-    state is (tile_shadow bool [tiles, P], tile_tests int32 [tiles, P] or [tiles]: see
-    :func:`_leaf_chunk`)."""
+    state is (tile_shadow bool [tiles, P], tile_tests int32 [tiles, P])."""
 
     shape: ch.TreeLayout
     axes: tuple[bool, bool, bool]
@@ -304,8 +297,7 @@ def flat_hierarchy(hier: ch.Hierarchy, tree: ch.TreeLayout, dtype) -> dict:
 def _finish(shape, keys, valid, slot, accepted, tile_shadow, tile_tests):
     """Per sample: shadowed by a leaf test or inside a trivially accepted node (merge),
     trivially-accepted-only, and test-and-sets. ``accepted`` is bool [rows, 32] (a row
-    per inner node of every level, see :func:`level_offsets`); ``tile_tests`` as
-    :func:`_leaf_chunk` leaves it (per sample [tiles, P], or per tile [tiles])."""
+    per inner node of every level, see :func:`level_offsets`)."""
     ta = jnp.zeros(keys.shape, bool)
     flat = accepted.reshape(-1)
     rows = level_offsets(shape)[0]
@@ -313,10 +305,7 @@ def _finish(shape, keys, valid, slot, accepted, tile_shadow, tile_tests):
         ta |= flat[32 * rows[level - 1] + (keys >> shape.shift(level)).astype(jnp.int32)]
     ta &= valid
     leaf = tile_shadow.reshape(-1)[slot] & valid
-    if tile_tests.ndim == 1:        # jobs per tile: each tested every valid sample
-        tests = jnp.where(valid, tile_tests[slot // tile_shadow.shape[1]], 0)
-    else:
-        tests = jnp.where(valid, tile_tests.reshape(-1)[slot], 0)
+    tests = jnp.where(valid, tile_tests.reshape(-1)[slot], 0)
     return leaf | ta, ta & ~leaf, tests
 
 
@@ -442,9 +431,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                                         leaf_samples == "cluster", bool(bias_reject))
             run = traverse(tests_spec, (params, arrays), arrays["off"]["masks"], casters,
                            accepted, (jnp.zeros((p_tiles, tree.tile_pixels), bool),
-                                      jnp.zeros((p_tiles, tree.tile_pixels)
-                                                if leaf_samples == "cluster" else p_tiles,
-                                                jnp.int32)),
+                                      jnp.zeros((p_tiles, tree.tile_pixels), jnp.int32)),
                            passes=passes, expand_level=level_l,
                            wave=wave if prune else None, prune=bool(prune),
                            buckets=_BUCKETS.setdefault(scene, {}), timer=timer)
