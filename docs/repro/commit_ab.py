@@ -83,9 +83,11 @@ def main(base: str, rounds: int, out: str, cases: list[str]) -> None:
         totals = {a: [r["stages_ms"]["total"] for r in v] for a, v in arms.items()}
         hashes = {r["lit_hash"] for v in arms.values() for r in v}
         counters = [r["counters"] for v in arms.values() for r in v]
-        differ = sorted(k for k in counters[0] if len({c.get(k) for c in counters}) > 1)
+        names = sorted(set().union(*counters))
+        # repr: a counter missing from one arm differs, and NaN equals NaN
+        differ = [k for k in names if len({repr(c.get(k)) for c in counters}) > 1]
         summary[case] = {"total_ms": totals, "identical_lit": len(hashes) == 1,
-                         "differing_counters": {k: {a: v[0]["counters"][k] for a, v in
+                         "differing_counters": {k: {a: v[0]["counters"].get(k) for a, v in
                                                     arms.items()} for k in differ},
                          "ratio_new_to_old": round(sum(totals["new"]) / sum(totals["old"]), 3)}
         print(case, summary[case])

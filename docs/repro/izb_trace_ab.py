@@ -52,21 +52,32 @@ def captured_trace_args(name: str, params: dict) -> tuple:
     return captured["args"]
 
 
-def base_module(base: str, tmp: str):
-    """The base commit's izb module, loaded under another name (its ``register`` call
-    would replace the working tree's ``izb`` in the method registry: the entry is put
-    back, so that frames still run the working tree's method)."""
-    path = os.path.join(tmp, "izb_base.py")
-    with open(path, "w") as f:
-        f.write(subprocess.check_output(["git", "show", f"{base}:shadowlab/methods/izb.py"],
-                                        text=True))
-    spec = importlib.util.spec_from_file_location("shadowlab.methods._izb_base", path)
+def _load(base: str, path: str, name: str, tmp: str):
+    """Module ``name`` from ``path`` in commit ``base``, written to ``tmp`` and loaded."""
+    file = os.path.join(tmp, name.rsplit(".", 1)[-1] + ".py")
+    with open(file, "w") as f:
+        f.write(subprocess.check_output(["git", "show", f"{base}:{path}"], text=True))
+    spec = importlib.util.spec_from_file_location(name, file)
     mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod            # dataclasses look their module up while defined
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def base_module(base: str, tmp: str):
+    """The base commit's izb module, loaded under another name, with the base commit's
+    light raster as its ``lr`` (the engine calls raster helpers that later commits
+    removed). Its ``register`` call would replace the working tree's ``izb`` in the
+    method registry: the entry is put back, so that frames still run the working
+    tree's method."""
+    raster = _load(base, "shadowlab/structures/light_raster.py",
+                   "shadowlab.structures._light_raster_base", tmp)
     entry = registry._REGISTRY["izb"]
     try:
-        spec.loader.exec_module(mod)
+        mod = _load(base, "shadowlab/methods/izb.py", "shadowlab.methods._izb_base", tmp)
     finally:
         registry._REGISTRY["izb"] = entry
+    mod.lr = raster
     return mod
 
 

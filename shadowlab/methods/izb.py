@@ -58,9 +58,10 @@ CSM_DEPTHS = ("corner", "slope")
 PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "csm_scale": 1,
                 "csm_min_area": 0.0}
 #: most (triangle, node) pairs, padding included, tested in one call of the pair kernel
+#: (a row wider than this runs alone)
 PAIR_CHUNK = 1 << 20
 #: row capacities per octave of the pair kernel's last chunk of each width
-#: (:func:`core.capacity.bucket`): at most 1/5 of it is padding
+#: (:func:`core.capacity.bucket`): above the 64-row minimum at most 1/5 of it is padding
 ROW_BUCKET_STEPS = 4
 #: the least light-space area (texels) of a triangle that can cover a texel fully: the
 #: smallest triangle containing a unit square has area 2 (one containing the texel's
@@ -73,8 +74,11 @@ COVERING_AREA = 2.0
 #: margin contains no such disk, so it covers no texel either (exactly: thin casters of
 #: any area, such as fur strands, write no depth)
 COVERING_RADIUS = {"corners": 0.5, "circle": lr.HALF_DIAGONAL}
-#: relative slack of both size tests: their float64 rounding, far below the raster's
-RELATIVE_SLACK = 1e-9
+#: relative slack of both size tests for their float64 rounding: |D| of a thin caster
+#: cancels (a relative error of about eps R^2 / area, 7e-9 at R 8192 for a caster of one
+#: texel), so 1e-6 keeps the skip exact up to well beyond R 8192; a caster skipped in
+#: error could only make the CSM cull less, never wrongly
+RELATIVE_SLACK = 1e-6
 
 
 def _plane_terms(planes, bound, tri):

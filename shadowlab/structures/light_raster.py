@@ -558,11 +558,13 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
     total = int(count.sum())
     m_cap = bucket(len(count), minimum=256)
     capacity = bucket(total, steps=FRAGMENT_BUCKET_STEPS)
-    # fragments index segments and keys in int32
-    check_int32(max(m_cap, len(keys)), "light-raster row segments and texel keys",
-                "use a smaller light resolution or fewer casters")
+    # fragments are numbered, and index segments and keys, in int32
+    check_int32(max(m_cap, len(keys), capacity), "light-raster fragments, row segments and "
+                "texel keys", "use a smaller light resolution or fewer casters")
     # each fragment's segment and key index, expanded on the host: a scatter of the run
-    # starts and a scan over the capacity cost XLA on the CPU more than np.repeat
+    # starts and a scan over the capacity cost XLA on the CPU more than np.repeat (the
+    # slots are np.repeat(first, count) + run_offsets(count), in int32 without the
+    # int64 temporaries)
     seg = np.zeros(capacity, np.int32)
     seg[:total] = np.repeat(np.arange(len(count), dtype=np.int32), count)
     slot = np.full(capacity, -1, np.int32)
