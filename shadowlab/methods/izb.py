@@ -392,8 +392,10 @@ class JaxEngine:
             tri = np.asarray(frags.tri)[kept]
             first, length = lists.start[slot], lists.length[slot]
             width = row_widths(length)
-            for w in np.unique(width):
-                rows = np.flatnonzero(width == w)
+            # the fragments grouped by width in one stable sort (not a pass per width)
+            by_width = stable_argsort(width)
+            widths, group_start = np.unique(width[by_width], return_index=True)
+            for w, rows in zip(widths, np.split(by_width, group_start[1:])):
                 step = max(1, PAIR_CHUNK // int(w))
                 for s0 in range(0, len(rows), step):
                     part = rows[s0: s0 + step]
