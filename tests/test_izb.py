@@ -95,6 +95,51 @@ def test_izb_is_exact_and_the_prepass_conservative(light_name, precision):
         assert csm.counters["csm_culled"] > 0
 
 
+def _closed_scene():
+    """Ground grid (open), closed boxes resting on it and one sunk into it (contacts: the
+    receiver bias puts some segment starts inside a box), and a closed sphere around the
+    point ``(0.3, 2.6, -0.4)`` (the light ``inside``)."""
+    ground = prim.quad_grid((-4, 4), (-4, 4), 0.0, cells=6)
+    boxes = prim.boxes(np.array([[-2.0, 0.0, -1.0], [0.5, 0.0, 0.5], [1.5, -0.2, -2.5]]),
+                       np.array([[-1.0, 1.0, 0.0], [1.2, 0.4, 1.5], [2.5, 0.6, -1.5]]))
+    sv, sf = prim.uv_sphere(8, 12)
+    shade = (sv * 0.5 + np.array([0.3, 2.6, -0.4]), sf)
+    parts = [Scene(v, f, np.zeros(len(f)), (name,), name)
+             for (v, f), name in zip((ground, boxes, shade), ("ground", "boxes", "shade"))]
+    return Scene.concatenate(parts, name="closed")
+
+
+@pytest.mark.parametrize("light_name", ["grazing", "steep", "inside", "above"])
+def test_front_face_culling_keeps_the_lit_mask(light_name, precision):
+    """Dropping closed objects' light-averted triangles (the default) gives the lit mask
+    and shadowed count of the unculled run, bit for bit; a light inside the closed
+    sphere keeps that sphere whole."""
+    scene = _closed_scene()
+    cam = sl.Camera(eye=(6.0, 7.0, 8.0), target=(0.0, 0.3, -0.5), up=(0, 1, 0), fov_y_deg=50.0,
+                    near=0.1, far=100.0, resolution=RES)
+    gbuf = sl.render_gbuffer(scene, cam)
+    light = LIGHTS[light_name]
+    extra = {"projection": "cube"} if light_name == "inside" else {}
+    on, off = (sl.compute_shadows(scene, gbuf, light, method="izb", precision=precision,
+                                  resolution=256, front_face_culling=c, **extra)
+               for c in (True, False))
+    assert np.array_equal(on.lit, off.lit)
+    assert on.counters["shadowed"] == off.counters["shadowed"] > 0
+    assert off.counters["front_face_culled"] == 0
+    culled = on.counters["front_face_culled"]
+    shade = int((scene.object_id == 2).sum())
+    boxes = int((scene.object_id == 1).sum())
+    # a box is culled by about half (its averted faces), the sphere by about half
+    # unless it holds the light; the open ground never
+    assert boxes // 4 <= culled - (0 if light_name == "inside" else shade // 3)
+    assert culled <= boxes + (0 if light_name == "inside" else shade)
+    assert on.counters["casters"] + culled <= off.counters["casters"]
+    # (tests can rise: the averted faces also cover texels of the CSM prepass, which
+    # then culls fewer samples)
+    truth = sl.reference_shadows(scene, gbuf, light)
+    assert len(unexplained_mismatches(scene, gbuf, light, on.lit, truth)) == 0
+
+
 def test_prepass_orderings_are_identities():
     """circle culls a subset of corners; the slope depth a subset of the corner depth."""
     for light_name in ("steep", "inside"):

@@ -43,6 +43,7 @@ from ..core.numerics import norms3
 from ..core.sorting import stable_argsort
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
+from ..geometry.caster_culling import front_face_culled, subset_scene
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.view import hard_light
 from ..structures import light_raster as lr
@@ -56,7 +57,7 @@ RESOLUTIONS = (256, 512, 1024, 2048, 4096, 8192)
 CSM_DEPTHS = ("corner", "slope")
 #: the poster's configuration: the method's ``preset="paper"``
 PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "csm_scale": 1,
-                "csm_min_area": 0.0}
+                "csm_min_area": 0.0, "front_face_culling": False}
 #: most (triangle, node) pairs, padding included, tested in one call of the pair kernel
 #: (a row wider than this runs alone)
 PAIR_CHUNK = 1 << 20
@@ -167,7 +168,7 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
           "prepass (exact)", kind="exact",
           paper="Wyman et al. 2015/2016 (IZB); Tokuyoshi & Mizokuchi 2018 (CSM prepass)",
           counters=("samples", "casters", "culled_triangles", "tests", "tests_per_pixel",
-                    "shadowed", "lit", "light_faces", "list_nodes", "list_length_max",
+                    "front_face_culled", "shadowed", "lit", "light_faces", "list_nodes", "list_length_max",
                     "list_length_per_pixel",
                     "list_nonempty_texels", "traced_fragments", "depth_culled_fragments",
                     "csm_texels", "csm_small_casters", "csm_culled", "csm_culled_per_pixel",
@@ -203,19 +204,25 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
                                "(counter csm_false_shadows)", allowed=(True, False)),
               "bias": Option("receiver", "self-shadowing bias, as brute_force; the CSM "
                              "prepass needs 'receiver'", allowed=("receiver", "cap")),
+              "front_face_culling": Option(True, "drop the triangles of closed objects that "
+                                           "face away from the light before anything is "
+                                           "rasterized (exact: the same lit mask in about "
+                                           "half the work on closed scenes; the papers "
+                                           "cull nothing)", allowed=(True, False)),
           })
 def izb(scene, gbuf, light, *, precision, shadow_eps, prepass, resolution, projection,
-        coverage, csm_depth, coverage_margin, csm_scale, csm_min_area, verify, bias):
+        coverage, csm_depth, coverage_margin, csm_scale, csm_min_area, verify, bias,
+        front_face_culling):
     return run_frame(scene, gbuf, light, ENGINE, precision=precision, shadow_eps=shadow_eps,
                      prepass=prepass, resolution=resolution, projection=projection,
                      coverage=coverage, csm_depth=csm_depth, coverage_margin=coverage_margin,
                      csm_scale=csm_scale, csm_min_area=csm_min_area, verify=verify,
-                     bias=bias)
+                     bias=bias, front_face_culling=front_face_culling)
 
 
 def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, resolution,
               projection, coverage, csm_depth, coverage_margin, csm_scale, csm_min_area, verify,
-              bias):
+              bias, front_face_culling):
     """One ``izb`` frame with the list build and tracing of ``engine`` (the JAX one,
     :data:`ENGINE`, or the Warp kernels' ``shadowlab.kernels.izb.ENGINE``)."""
     if prepass == "csm" and bias != "receiver":
@@ -226,6 +233,15 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
         samples = view_samples(gbuf, light)
     s_count = samples.count
     light_h = hard_light(light).homogeneous
+    all_triangles = scene.num_triangles
+    face_culled = 0
+    if front_face_culling:
+        # the shared exact rule (geometry.caster_culling); the subset keeps the scene's
+        # bounds, so the shadow offset is unchanged, and is cached per scene and mask
+        with timer.stage("setup"):
+            averted = front_face_culled(scene, light_h, "averted")
+            face_culled = int(averted.sum())
+            scene = subset_scene(scene, ~averted)
     with precision_mode(precision) as dtype:
         t_cap = bucket(scene.num_triangles, minimum=16)
         tri_pad = pad(scene.triangles, t_cap, dtype=dtype)
@@ -235,7 +251,8 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
                                               shadow_eps, bias, dtype)
         casters = int(valid.sum())
         counters = {"samples": s_count, "casters": casters,
-                    "culled_triangles": scene.num_triangles - casters}
+                    "culled_triangles": all_triangles - casters,
+                    "front_face_culled": face_culled}
         if s_count == 0:
             for name in ("light_setup", "csm", "build", "trace", "verify"):
                 timer.times[name] = 0.0
