@@ -981,7 +981,10 @@ def _sample_stage(tree):
 def prepare(scene, gbuf, light, o: dict, device: str | None = None) -> dict:
     """Everything before the traversal, as ``clustered_ptsv.run_traversal_method`` does it:
     samples, cluster keys and post-perspective coordinates (JAX, the inputs of the
-    build), the ``setup`` kernel (planes, g, tol), bias terms, casters.
+    build), the ``setup`` kernel (planes, g, tol), bias terms, casters. With
+    ``front_face_culling`` the setup covers the kept triangles only (``scene`` in the
+    result: the subset, whose indices ``casters`` and the setup arrays use;
+    ``face_culled``: how many were dropped).
     """
     import jax.numpy as jnp
 
@@ -996,6 +999,11 @@ def prepare(scene, gbuf, light, o: dict, device: str | None = None) -> dict:
     camera = gbuf.camera
     light_h = hard_light(light).homogeneous
     _h, w = gbuf.shape
+    face_culled = 0
+    if o["front_face_culling"]:      # dropped before the setup, as the JAX method does
+        drop = cm.front_face_culled(scene, light_h, o.get("cull_side", "averted"))
+        face_culled = int(drop.sum())
+        scene = cm.subset_scene(scene, ~drop)
     tree = ch.cluster_layout(camera, o["z_bits"], o["depth_slices"])
     px = (samples.index % w).astype(np.int32)
     py = (samples.index // w).astype(np.int32)
@@ -1021,14 +1029,12 @@ def prepare(scene, gbuf, light, o: dict, device: str | None = None) -> dict:
     scale, bound = bias_terms(samples, light_h, st["planes"].reshape(-1, 4, 4),
                               cap_bias(scene, o["shadow_eps"]), o["bias"])
     bound = np.where(st["valid"], bound, -np.inf).astype(f32)
-    culled = np.zeros(scene.num_triangles, bool)
-    if o["front_face_culling"]:
-        culled = cm.front_face_culled(scene, light_h, o.get("cull_side", "averted"))
-    casters = np.flatnonzero(st["valid"] & ~culled).astype(np.int32)
+    casters = np.flatnonzero(st["valid"]).astype(np.int32)
     tm["setup"] = time.perf_counter() - t0
     return dict(timings=tm, samples=samples, tree=tree, px=px, py=py, pos=pos, coords=coords, keys=keys,
                 saturated=saturated, scale=scale.astype(f32), bound=bound, casters=casters,
-                culled=culled, table=tile_table(tree, px, py), extra=extra, **st)
+                face_culled=face_culled, scene=scene, table=tile_table(tree, px, py),
+                extra=extra, **st)
 
 
 def traverse(p: dict, hier: Hierarchy, o: dict, form: str = "lanes", workers: int = 64,
@@ -1206,7 +1212,7 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     counters = {
         "samples": samples.count, "casters": len(p["casters"]),
         "culled_triangles": scene.num_triangles - len(p["casters"]),
-        "front_face_culled": int(p["culled"].sum()),
+        "front_face_culled": p["face_culled"],
         "tests": int(r["tests"].sum()), "tests_per_pixel": samples.scatter(r["tests"], fill=0),
         "node_tests": r["node_tests"], "trivial_accepts": r["trivial_accepts"],
         "trivial_rejects": r["trivial_rejects"], "extra_plane_rejects": r["extra_plane_rejects"],

@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..geometry.caster_culling import CULL_SIDES, front_face_culled
+from ..geometry.caster_culling import CULL_SIDES, front_face_culled, subset_scene
 from ..engines.traversal import child_words, traverse
 from ..geometry.morton import decode
 from ..scene.view import hard_light
@@ -378,6 +378,16 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             samples, facing = _all_valid_samples(gbuf, samples)
     camera = gbuf.camera
     light_h = hard_light(light).homogeneous
+    all_triangles = scene.num_triangles
+    face_culled = 0
+    if front_face_culling:
+        # dropped before the triangle setup (on a cached subset that keeps the scene's
+        # bounds, so the shadow offset is unchanged): the setup and the post-perspective
+        # planes then cover the kept triangles only; the casters keep their order
+        with timer.stage("setup"):
+            drop = front_face_culled(scene, light_h, cull_side)
+            face_culled = int(drop.sum())
+            scene = subset_scene(scene, ~drop)
     with precision_mode(precision) as dtype:
         tree = (ch.cluster_layout(camera, z_bits, depth_slices) if kind == "cluster"
                 else ch.ptsv_layout(camera))
@@ -388,11 +398,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
         with timer.stage("setup"):
             valid, _, scale, bound = caster_terms(scene, samples, light_h, planes, valid,
                                                   shadow_eps, bias, dtype)
-            culled = np.zeros(t_cap, bool)
-            if front_face_culling:
-                culled[: scene.num_triangles] = front_face_culled(scene, light_h,
-                                                                  cull_side)
-            casters = np.flatnonzero(valid & ~culled).astype(np.int32)
+            casters = np.flatnonzero(valid).astype(np.int32)
             s_cap = bucket(samples.count, minimum=MIN_SAMPLES)
             pos = jnp.asarray(samples.padded_position(dtype, s_cap))
             scale_d = jnp.asarray(samples.padded(scale, dtype, s_cap))
@@ -452,8 +458,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     counters = {
         "samples": samples.count,
         "casters": int(len(casters)),
-        "culled_triangles": scene.num_triangles - int(len(casters)),
-        "front_face_culled": int(culled[: scene.num_triangles].sum()),
+        "culled_triangles": all_triangles - int(len(casters)),
+        "front_face_culled": face_culled,
         "tests": int(tests.sum()),
         "tests_per_pixel": samples.scatter(tests, fill=0),
         **{name: int(c) for name, c in zip(PlaneNodeTests.counters, run.counts)},
