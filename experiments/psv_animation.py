@@ -30,6 +30,7 @@ from shadowlab.harness.claims import measured
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
 from shadowlab.scene.view import Animation, PointLight
+from shadowlab.methods.psv import UNCULLED_TREE
 
 METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
 PAPER_RANGE = {"d_psv": (62, 72), "d_hybrid": (62, 72), "d_stackless": (84, 114)}
@@ -89,8 +90,10 @@ def run(cfg: dict) -> dict:
         zpass_seconds[f] = np.median([x.timings["total"] for x in zr])
         zpass_unexplained[f] = unexplained_count(scene, gbuf, view.light, zr[-1].lit, truth)
         for j, m in enumerate(METHODS):
-            sl.compute_shadows(scene, gbuf, view.light, method=m, precision=prec)  # warm-up
-            runs = [sl.compute_shadows(scene, gbuf, view.light, method=m, precision=prec)
+            sl.compute_shadows(scene, gbuf, view.light, method=m, precision=prec,
+                               **UNCULLED_TREE)  # warm-up
+            runs = [sl.compute_shadows(scene, gbuf, view.light, method=m, precision=prec,
+                                       **UNCULLED_TREE)
                     for _ in range(repeats)]
             r = runs[-1]
             maps[(f, m, "lit")] = r.lit

@@ -24,6 +24,7 @@ import shadowlab as sl
 from shadowlab.harness.claims import measured
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.methods import psv as psvm
+from shadowlab.methods.psv import UNCULLED_TREE
 from shadowlab.core.frame import precision_mode, view_samples
 from shadowlab.scene.procedural import default_view
 
@@ -68,7 +69,7 @@ def run(cfg: dict) -> dict:
             stats[i, j] = [st[k] for k in STATS]
             for k, m in enumerate(("psv", "d_hybrid")):
                 runs = [sl.compute_shadows(scene, gbuf, view.light, method=m, order=order,
-                                           seed=seed, precision=prec)
+                                           seed=seed, precision=prec, **UNCULLED_TREE)
                         for _ in range(repeats if m == "d_hybrid" else 1)]
                 r = runs[-1]
                 ov = r.counters.get("stack_overflows_per_pixel")
@@ -80,7 +81,8 @@ def run(cfg: dict) -> dict:
                     seconds[i, j] = np.median([x.timings["total"] for x in runs])
                     if j == 0:      # determinism: the same seed again gives the same counts
                         again = sl.compute_shadows(scene, gbuf, view.light, method=m,
-                                                   order=order, seed=seed, precision=prec)
+                                                   order=order, seed=seed, precision=prec,
+                                                   **UNCULLED_TREE)
                         repeat_equal[i] = np.array_equal(
                             again.counters["visited_nodes_per_pixel"],
                             r.counters["visited_nodes_per_pixel"])

@@ -23,6 +23,7 @@ import numpy as np
 from shadowlab.harness import evaluate, hard_metric
 from shadowlab.harness.claims import measured
 from shadowlab.harness.figures import scene_frames
+from shadowlab.methods.psv import UNCULLED_TREE
 
 METHODS = ("psv", "d_psv", "d_stackless", "d_hybrid")
 
@@ -50,7 +51,8 @@ def run(cfg: dict) -> dict:
         out["reference_seconds"].append(refs.hard_seconds[1])
 
         def measure(method, **opts):
-            ev = evaluate(scene, gbuf, view.light, method, dict(opts, precision=prec),
+            ev = evaluate(scene, gbuf, view.light, method,
+                          dict(UNCULLED_TREE, **opts, precision=prec),
                           reference=refs, metric=no_overflow_metric, repeats=repeats)
             return ev.result, ev.seconds, ev.error
 

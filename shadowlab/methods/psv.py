@@ -26,6 +26,7 @@ import numpy as np
 
 from ..core.capacity import CapacityError, bucket, check_int32, pad
 from ..core.numerics import materialize, pack_interval, unpack_interval, unpack_interval_np
+from ..geometry.caster_culling import front_face_culled
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.caches import per_scene_cache
 from ..scene.view import hard_light
@@ -58,6 +59,12 @@ def frustum_light_hull(camera, light_h: np.ndarray, extent: float) -> np.ndarray
     return ConvexHull(pts).equations
 
 
+#: the options of the trees the PSV experiments measure: every caster in the tree, as
+#: their claims were first checked (the default drops closed objects' light-averted
+#: triangles; the papers' own setting is ``face_culling="front"``)
+UNCULLED_TREE = {"face_culling": "none"}
+
+
 def casters(scene, light, camera, dtype, face_culling: str, frustum_culling: bool):
     """Planes [T, 4, 4] (dtype, NumPy), mask of kept triangles [T] and culling counts."""
     light_h = hard_light(light).homogeneous
@@ -70,7 +77,12 @@ def casters(scene, light, camera, dtype, face_culling: str, frustum_culling: boo
     keep = np.asarray(valid)[: scene.num_triangles].copy()
     culled = {"degenerate": int((~keep).sum()), "face": 0, "frustum": 0}
     tris = scene.triangles
-    if face_culling != "none":
+    if face_culling == "averted":
+        # closed objects' light-averted triangles (the shared exact rule, as clustered_ptsv)
+        cull = front_face_culled(scene, light_h, "averted")
+        culled["face"] = int((keep & cull).sum())
+        keep &= ~cull
+    elif face_culling != "none":
         n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         to_l = light_h[:3] - light_h[3] * tris[:, 0]
         front = np.einsum("ij,ij->i", n, to_l) > 0
@@ -892,9 +904,12 @@ _COMMON = {
                             "coordinate: a triangle within it of a plane goes to the "
                             "intersection child (0 = the paper's plain sign test)",
                             kind=int, minimum=0),
-    "face_culling": Option("none", "cull casters whose winding normal faces the light "
-                           "('front', the papers' setting; exact only for closed meshes) or "
-                           "faces away ('back')", allowed=("none", "front", "back")),
+    "face_culling": Option("averted", "cull the triangles of closed objects that face away "
+                           "from the light ('averted': exact, the shared rule of "
+                           "clustered_ptsv and cull_casters), or every caster whose winding "
+                           "normal faces the light ('front', the papers' setting; exact only "
+                           "for closed meshes) or faces away ('back'); 'none' culls nothing",
+                           allowed=("averted", "none", "front", "back")),
     "frustum_culling": Option(False, "cull casters outside the convex hull of the view "
                               "frustum and the light (Mora et al. 2016)", allowed=(False, True)),
     "edge_tie": Option("inside", "a sample exactly on an edge plane is inside (as "
