@@ -47,13 +47,14 @@ light_h = sl.scene.view.hard_light(light).homogeneous
 # ## The tree
 #
 # Built exactly as `psv` builds it (the method's defaults: seeded random insertion order,
-# the conservative wedge bound, float32).
+# the conservative wedge bound, closed objects' light-averted triangles culled, float32).
 
 # %%
 with precision_mode("float32") as dtype:
     tree, scale, _ = psvm.build_tree(scene, light, gbuf.camera, samples, dtype=dtype,
                                      shadow_eps=1e-5, bias="receiver", order="random",
-                                     seed=0, wedge="conservative", classify_ulps=64)
+                                     seed=0, wedge="conservative", classify_ulps=64,
+                                     face_culling=sl.methods.get("psv").options["face_culling"].default)
 stats = tree.stats()
 for k, v in stats.items():
     print(f"{k:24} {v}")

@@ -300,3 +300,20 @@ def test_cross_columns_is_numpy_cross_bit_for_bit():
         got = np.stack(cross_columns(list(a.T), list(b.T)), axis=1)
         assert got.dtype == dtype
         np.testing.assert_array_equal(got, np.cross(a, b))
+
+
+def test_without_culled_faces_keeps_order_bounds_and_one_triangle(monkeypatch):
+    """The methods' own face culling: the kept triangles in their order, the scene's
+    bounds, the count dropped; and a scene never loses its last triangle."""
+    scene = procedural.make("sphere_grid", n=2, triangles_per_sphere=80)
+    light_h = np.array([0.3, 5.0, 0.2, 1.0])
+    drop = cc.front_face_culled(scene, light_h, "averted")
+    sub, count = cc.without_culled_faces(scene, light_h, "averted")
+    assert count == int(drop.sum()) > 0
+    np.testing.assert_array_equal(sub.triangles, scene.triangles[~drop])
+    np.testing.assert_array_equal(sub.bounds, scene.bounds)
+    monkeypatch.setattr(cc, "front_face_culled",
+                        lambda s, lh, side="averted": np.ones(s.num_triangles, bool))
+    last, count = cc.without_culled_faces(scene, light_h)
+    assert last.num_triangles == 1 and count == scene.num_triangles - 1
+    np.testing.assert_array_equal(last.triangles[0], scene.triangles[0])

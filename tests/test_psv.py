@@ -151,7 +151,7 @@ def test_device_node_arrays_live_as_long_as_their_tree():
 
 
 #: the methods' default caster culling (closed objects' light-averted triangles)
-DEFAULT_FACE_CULLING = psvm._COMMON["face_culling"].default
+DEFAULT_FACE_CULLING = sl.methods.get("psv").options["face_culling"].default
 
 
 def _query_inputs(scene, light, gbuf, wedge="conservative"):

@@ -484,6 +484,23 @@ def subset_gbuffer(gbuf, keep: np.ndarray):
     return dataclasses.replace(gbuf, triangle=renumbered)
 
 
+def without_culled_faces(scene, light_h: np.ndarray, side: str = "averted"):
+    """The methods' own face culling before their triangle setup: (the scene without the
+    triangles :func:`front_face_culled` drops, how many it dropped).
+
+    The result is a cached :func:`subset_scene`: it keeps the scene's bounds (so shadow
+    offsets, a fraction of the diagonal, are unchanged) and the order of the kept
+    triangles. Its triangle ids are its own; the G-buffer's are not renumbered (the
+    methods that call this read none). Should every triangle go (possible only for
+    degenerate closed objects), the first one stays, since a scene holds at least one;
+    a dropped triangle decides no shadow, so keeping it changes nothing.
+    """
+    drop = front_face_culled(scene, light_h, side)
+    if drop.all():
+        drop[0] = False
+    return subset_scene(scene, ~drop), int(drop.sum())
+
+
 def subset_scene(scene, keep: np.ndarray):
     """``scene.subset(keep)``, cached per scene and mask (a static frame reuses it, and so
     the per-scene caches of the subset, such as its edge adjacency)."""
@@ -502,4 +519,4 @@ def subset_scene(scene, keep: np.ndarray):
 
 __all__ = ["CULL_MODES", "CULL_SIDES", "CasterCull", "PAD", "behind_receivers", "cull_casters",
            "front_face_culled", "hull_planes", "hull_points", "outside_hull", "outward_normals",
-           "subset_gbuffer", "subset_scene"]
+           "subset_gbuffer", "subset_scene", "without_culled_faces"]

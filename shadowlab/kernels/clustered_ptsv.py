@@ -999,11 +999,6 @@ def prepare(scene, gbuf, light, o: dict, device: str | None = None) -> dict:
     camera = gbuf.camera
     light_h = hard_light(light).homogeneous
     _h, w = gbuf.shape
-    face_culled = 0
-    if o["front_face_culling"]:      # dropped before the setup, as the JAX method does
-        drop = cm.front_face_culled(scene, light_h, o.get("cull_side", "averted"))
-        face_culled = int(drop.sum())
-        scene = cm.subset_scene(scene, ~drop)
     tree = ch.cluster_layout(camera, o["z_bits"], o["depth_slices"])
     px = (samples.index % w).astype(np.int32)
     py = (samples.index // w).astype(np.int32)
@@ -1021,6 +1016,10 @@ def prepare(scene, gbuf, light, o: dict, device: str | None = None) -> dict:
                                    np.zeros(0, bool))
     tm["keys"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    face_culled = 0
+    if o["front_face_culling"]:      # dropped before the setup, as the JAX method does
+        scene, face_culled = cm.without_culled_faces(scene, light_h,
+                                                     o.get("cull_side", "averted"))
     qmax = float(coords[:, 2].max()) if samples.count else 1.0
     pmax = float(np.abs(samples.position).max()) if samples.count else 1.0
     tri = scene.triangles.astype(f32)

@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..geometry.caster_culling import CULL_SIDES, front_face_culled, subset_scene
+from ..geometry.caster_culling import CULL_SIDES, without_culled_faces
 from ..engines.traversal import child_words, traverse
 from ..geometry.morton import decode
 from ..scene.view import hard_light
@@ -362,7 +362,9 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     Returns:
         (ShadowResult, details) where details holds the full per-job iteration arrays
         ``iterations_pass1`` [casters] (in caster order), ``iterations_pass2`` [jobs],
-        ``pass2_triangles`` / ``pass2_nodes`` [jobs], ``casters`` [C] triangle ids,
+        ``pass2_triangles`` / ``pass2_nodes`` [jobs], ``casters`` [C] triangle ids (of
+        ``details["scene"]``: the frame-local scene, or its subset without the
+        face-culled triangles),
         the ``tree`` layout, the ``memory`` report, and the arrays the traversal used
         (``hierarchy``, ``g``, ``tol``, ``bound``, ``planes``, ``scale``, ``keys``,
         ``table``, per-sample ``tests``) for analysis and tests.
@@ -379,15 +381,15 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     camera = gbuf.camera
     light_h = hard_light(light).homogeneous
     all_triangles = scene.num_triangles
+    # capacity buckets learnt per frame-local scene (a moving light gives a new subset
+    # every frame, so not per subset)
+    buckets = _BUCKETS.setdefault(scene, {})
     face_culled = 0
     if front_face_culling:
-        # dropped before the triangle setup (on a cached subset that keeps the scene's
-        # bounds, so the shadow offset is unchanged): the setup and the post-perspective
-        # planes then cover the kept triangles only; the casters keep their order
+        # dropped before the triangle setup: the setup and the post-perspective planes
+        # cover the kept triangles only; the casters keep their order
         with timer.stage("setup"):
-            drop = front_face_culled(scene, light_h, cull_side)
-            face_culled = int(drop.sum())
-            scene = subset_scene(scene, ~drop)
+            scene, face_culled = without_culled_faces(scene, light_h, cull_side)
     with precision_mode(precision) as dtype:
         tree = (ch.cluster_layout(camera, z_bits, depth_slices) if kind == "cluster"
                 else ch.ptsv_layout(camera))
@@ -440,7 +442,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                                       jnp.zeros((p_tiles, tree.tile_pixels), jnp.int32)),
                            passes=passes, expand_level=level_l,
                            wave=wave if prune else None, prune=bool(prune),
-                           buckets=_BUCKETS.setdefault(scene, {}), timer=timer)
+                           buckets=buckets, timer=timer)
             tile_shadow, tile_tests = run.leaf_state
             jax.block_until_ready(tile_shadow)
         iters1, iters2 = run.iterations_pass1, run.iterations_pass2
@@ -483,7 +485,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     timings = dict(timer.times, total=timer.total)
     details = {"iterations_pass1": iters1, "iterations_pass2": iters2,
                "pass2_triangles": run.pass2_items, "pass2_nodes": run.pass2_nodes,
-               "casters": casters,
+               "casters": casters, "scene": scene,
                "tree": tree, "memory": memory, "hierarchy": hier, "g": g, "tol": tol,
                "bound": bound, "planes": planes, "scale": scale_d, "keys": keys,
                "table": table, "axes": axes, "extra": extra, "smax": sst["smax"],

@@ -43,7 +43,7 @@ from ..core.numerics import norms3
 from ..core.sorting import stable_argsort
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
-from ..geometry.caster_culling import front_face_culled, subset_scene
+from ..geometry.caster_culling import without_culled_faces
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.view import hard_light
 from ..structures import light_raster as lr
@@ -236,12 +236,9 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
     all_triangles = scene.num_triangles
     face_culled = 0
     if front_face_culling:
-        # the shared exact rule (geometry.caster_culling); the subset keeps the scene's
-        # bounds, so the shadow offset is unchanged, and is cached per scene and mask
+        # the shared exact rule (geometry.caster_culling), before the set-up
         with timer.stage("setup"):
-            averted = front_face_culled(scene, light_h, "averted")
-            face_culled = int(averted.sum())
-            scene = subset_scene(scene, ~averted)
+            scene, face_culled = without_culled_faces(scene, light_h, "averted")
     with precision_mode(precision) as dtype:
         t_cap = bucket(scene.num_triangles, minimum=16)
         tri_pad = pad(scene.triangles, t_cap, dtype=dtype)
