@@ -168,8 +168,8 @@ def _delta_slope(cam, delta: np.ndarray) -> np.ndarray:
           "prepass (exact)", kind="exact",
           paper="Wyman et al. 2015/2016 (IZB); Tokuyoshi & Mizokuchi 2018 (CSM prepass)",
           counters=("samples", "casters", "culled_triangles", "tests", "tests_per_pixel",
-                    "front_face_culled", "shadowed", "lit", "light_faces", "list_nodes", "list_length_max",
-                    "list_length_per_pixel",
+                    "front_face_culled", "shadowed", "lit", "light_faces", "list_nodes",
+                    "list_length_max", "list_length_per_pixel",
                     "list_nonempty_texels", "traced_fragments", "depth_culled_fragments",
                     "csm_texels", "csm_small_casters", "csm_culled", "csm_culled_per_pixel",
                     "csm_false_shadows"),
@@ -406,9 +406,12 @@ class JaxEngine:
             tri = np.asarray(frags.tri)[kept]
             first, length = lists.start[slot], lists.length[slot]
             width = row_widths(length)
-            # the fragments grouped by width in one stable sort (not a pass per width)
+            # the fragments grouped by width in one stable sort (not a pass per width);
+            # the groups start where the sorted width changes
             by_width = stable_argsort(width)
-            widths, group_start = np.unique(width[by_width], return_index=True)
+            sorted_width = width[by_width]
+            group_start = np.flatnonzero(np.r_[True, sorted_width[1:] != sorted_width[:-1]])
+            widths = sorted_width[group_start]
             for w, rows in zip(widths, np.split(by_width, group_start[1:])):
                 step = max(1, PAIR_CHUNK // int(w))
                 for s0 in range(0, len(rows), step):

@@ -80,13 +80,12 @@ def casters(scene, light, camera, dtype, face_culling: str, frustum_culling: boo
     if face_culling == "averted":
         # closed objects' light-averted triangles (the shared exact rule, as clustered_ptsv)
         cull = front_face_culled(scene, light_h, "averted")
-        culled["face"] = int((keep & cull).sum())
-        keep &= ~cull
-    elif face_culling != "none":
+    elif face_culling != "none":      # the papers' rule by winding alone
         n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         to_l = light_h[:3] - light_h[3] * tris[:, 0]
         front = np.einsum("ij,ij->i", n, to_l) > 0
         cull = front if face_culling == "front" else ~front
+    if face_culling != "none":
         culled["face"] = int((keep & cull).sum())
         keep &= ~cull
     if frustum_culling:
