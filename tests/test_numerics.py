@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from shadowlab.core.numerics import (column_bounds, cross3, norms3, opaque, opaque_mul, opaque_multiplier,
+from shadowlab.core.numerics import (column_bounds, cross3, max_abs, norms3, opaque, opaque_mul, opaque_multiplier,
                                      pack_interval, unpack_interval, unpack_interval_np,
                                      opaque_zero, ordered_dot, ordered_sum)
 from shadowlab.core.frame import precision_mode
@@ -177,6 +177,23 @@ def test_column_bounds_equal_numpy_min_max(dtype):
         column_bounds(np.zeros((0, 3), dtype))
     with pytest.raises(ValueError):
         column_bounds(np.zeros(3, dtype))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_max_abs_equals_numpy_abs_max(dtype):
+    """max_abs gives np.abs(x).max(initial=0.0) exactly: signs, infinities, NaN, empty."""
+    rng = np.random.default_rng(11)
+    for shape in ((1000, 3), (17, 3, 3), (5,)):
+        x = (rng.normal(size=shape) * 10.0 ** rng.uniform(-20, 20, shape)).astype(dtype)
+        ref = float(np.abs(x).max(initial=0.0))
+        assert max_abs(x) == ref and max_abs(-x) == ref
+        assert max_abs(np.abs(x)) == ref
+    x = np.array([1.0, -np.inf, 2.0], dtype)
+    assert max_abs(x) == np.inf
+    assert np.isnan(max_abs(np.array([np.nan, 1.0], dtype)))
+    assert np.isnan(max_abs(np.array([1.0, np.nan], dtype)))
+    assert max_abs(np.zeros((0, 3), dtype)) == 0.0
+    assert max_abs(np.array([-0.0], dtype)) == 0.0
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

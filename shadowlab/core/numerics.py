@@ -260,3 +260,12 @@ def unpack_interval(words):
     lo = bc((b & jnp.uint64(0xFFFFFFFF)).astype(jnp.uint32), jnp.float32)
     hi = bc((b >> jnp.uint64(32)).astype(jnp.uint32), jnp.float32)
     return lo.astype(jnp.float64), hi.astype(jnp.float64)
+
+
+def max_abs(x: np.ndarray) -> float:
+    """The largest ``|x|`` over every element of ``x`` (0.0 when empty; NaN if any is
+    NaN), as ``np.abs(x).max(initial=0.0)`` without its temporary the size of ``x``."""
+    x = np.asarray(x)
+    if x.size == 0:
+        return 0.0
+    return float(np.maximum(np.maximum(x.max(), -x.min()), 0.0))

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..core.capacity import bucket, pad
 from ..core.frame import caster_terms, cap_bias, precision_mode, view_samples
-from ..core.numerics import norms3
+from ..core.numerics import max_abs, norms3
 from ..core.sorting import stable_argsort
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
@@ -270,8 +270,7 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
             tw = float(lr.texel_world_size(cam, face=face, depth=depth_p).min())
             # the largest world coordinate of the casters and the samples (no [T + S, 3]
             # concatenation: each array's own maximum)
-            extent = np.array([np.abs(scene.triangles).max(initial=0.0),
-                               np.abs(samples.position).max(initial=0.0)])
+            extent = np.array([max_abs(scene.triangles), max_abs(samples.position)])
             tau = coverage_margin + lr.rounding_margin(dtype, extent, tw)
             # depth margin (delta units per sample): rounding of world coordinates
             m_world = 64.0 * float(np.finfo(dtype).eps) * float(extent.max())
@@ -312,7 +311,8 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
             # them against every node of that face (nothing rasterizes them)
             order = lists.order
             for f, st in enumerate(setups):
-                odd = np.flatnonzero(ok_tri & (st.absdet == 0) & np.any(st.vertex_w > 0, axis=1))
+                flat = np.flatnonzero(st.absdet == 0)
+                odd = flat[ok_tri[flat] & np.any(st.vertex_w[flat] > 0, axis=1)]
                 fn = order[face[order] == f] if len(odd) else order[:0]
                 if len(fn):
                     pn, pt = np.tile(fn, len(odd)), np.repeat(odd, len(fn))

@@ -151,7 +151,8 @@ def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> Face
     rows = [cross_columns(h[(i + 1) % 3], h[(i + 2) % 3]) for i in range(3)]
     det = ordered_dot(h[0], rows[0], np.multiply)
     sign = np.where(det < 0, -1.0, 1.0)
-    # the [T, 3, 3] outputs are views of [3, 3, T] buffers whose rows are written in place
+    # every [T, k] output is the transposed view of a [k, T] buffer written row by row
+    # (a strided [T, k] write or stack costs several times more)
     edge = np.empty((3, 3, n))                                      # edge[i][k]: [T]
     unit = np.empty((3, 3, n))
     for i in range(3):
@@ -163,25 +164,30 @@ def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> Face
     safe = np.where(absdet > 0, absdet, 1.0)
     kappa = ([vdelta[i] * w[i] for i in range(3)] if face.orthographic
              else [-face.near] * 3)
-    depth = [ordered_dot(kappa, edge[:, k], np.multiply) / safe for k in range(3)]
-    norm = [np.hypot(e[0], e[1]) for e in edge]
+    depth = np.empty((3, n))
+    for k in range(3):
+        np.divide(ordered_dot(kappa, edge[:, k], np.multiply), safe, out=depth[k])
+    norm = np.empty((3, n))
+    for i in range(3):
+        np.hypot(edge[i, 0], edge[i, 1], out=norm[i])
     with np.errstate(divide="ignore", invalid="ignore"):
-        wf = [np.where(front, wi, 1.0) for wi in w]
-        u = [h[i][0] / wf[i] for i in range(3)]
-        v = [h[i][1] / wf[i] for i in range(3)]
-    lo_u = np.floor(np.minimum(np.minimum(u[0], u[1]), u[2]) - pad)
-    hi_u = np.floor(np.maximum(np.maximum(u[0], u[1]), u[2]) + pad)
-    lo_v = np.floor(np.minimum(np.minimum(v[0], v[1]), v[2]) - pad)
-    hi_v = np.floor(np.maximum(np.maximum(v[0], v[1]), v[2]) + pad)
+        # meaningful where front; the boxes below read them only there
+        u = [h[i][0] / w[i] for i in range(3)]
+        v = [h[i][1] / w[i] for i in range(3)]
+    with np.errstate(invalid="ignore"):
+        lo_u = np.floor(np.minimum(np.minimum(u[0], u[1]), u[2]) - pad)
+        hi_u = np.floor(np.maximum(np.maximum(u[0], u[1]), u[2]) + pad)
+        lo_v = np.floor(np.minimum(np.minimum(v[0], v[1]), v[2]) - pad)
+        hi_v = np.floor(np.maximum(np.maximum(v[0], v[1]), v[2]) + pad)
     fr = front & ok
-    bbox = np.empty((n, 4), dtype=np.int64)
-    bbox[:] = (0, r - 1, 0, r - 1)
-    bbox[fr, 0] = np.clip(lo_u[fr], 0, r - 1)
-    bbox[fr, 1] = np.clip(hi_u[fr], -1, r - 1)
-    bbox[fr, 2] = np.clip(lo_v[fr], 0, r - 1)
-    bbox[fr, 3] = np.clip(hi_v[fr], -1, r - 1)
+    # the box of a front triangle clamped to the grid, the whole grid for the others
+    box = np.empty((4, n), dtype=np.int64)
+    for k, (value, low, other) in enumerate(((lo_u, 0, 0), (hi_u, -1, r - 1),
+                                             (lo_v, 0, 0), (hi_v, -1, r - 1))):
+        box[k] = np.clip(np.where(fr, value, other), low, r - 1)
+    bbox = box.T
     off = fr & ((hi_u < 0) | (lo_u > r - 1) | (hi_v < 0) | (lo_v > r - 1))
-    bbox[off] = (1, 0, 1, 0)
+    _set_boxes(box, off, (1, 0, 1, 0))
     for i in range(3):
         flat = np.flatnonzero(norm[i] == 0)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -190,13 +196,19 @@ def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> Face
         unit[i, :2, flat] = 0.0
         unit[i, 2, flat] = np.where(edge[i][2][flat] >= 0, np.inf, -np.inf)
     edges = edge.transpose(2, 0, 1)
-    norms = np.stack(norm, axis=1)
+    norms = norm.T
     for t in np.flatnonzero(ok & ~front):   # reaching behind the light: clip the grid
         bbox[t] = _clipped_box(edges[t], norms[t], r, pad)
-    bbox[~ok] = (1, 0, 1, 0)
-    return FaceSetup(edges, norms, np.stack(depth, axis=1), bbox, front, ok,
-                     np.stack(vdelta, axis=1), np.stack(w, axis=1), absdet,
-                     unit.transpose(2, 0, 1))
+    _set_boxes(box, ~ok, (1, 0, 1, 0))
+    return FaceSetup(edges, norms, depth.T, bbox, front, ok, np.array(vdelta).T,
+                     np.array(w).T, absdet, unit.transpose(2, 0, 1))
+
+
+def _set_boxes(box: np.ndarray, where: np.ndarray, value: tuple[int, ...]) -> None:
+    """Set the columns ``where`` (bool [T]) of ``box`` [4, T] to ``value``."""
+    t = np.flatnonzero(where)
+    if len(t):
+        box[:, t] = np.asarray(value, dtype=box.dtype)[:, None]
 
 
 def _clipped_box(edges: np.ndarray, norms: np.ndarray, r: int, pad: float) -> np.ndarray:
@@ -277,7 +289,9 @@ def row_segments(setups: list[FaceSetup], keys: np.ndarray, resolution: int,
             lo, hi = rank(base + col0, base + col1 + 1)
         keep = hi > lo
         out.append((np.full(int(keep.sum()), f), rt[keep], lo[keep], (hi - lo)[keep]))
-    return tuple(np.concatenate([o[i] for o in out]).astype(np.int64) for i in range(4))
+    # one face (no concatenation), and no copy of arrays that are int64 already
+    return tuple((out[0][i] if len(out) == 1 else np.concatenate([o[i] for o in out]))
+                 .astype(np.int64, copy=False) for i in range(4))
 
 
 class KeyRank:
