@@ -403,24 +403,29 @@ class JaxEngine:
         shadow = jnp.zeros(points.shape[0], jnp.int8)
         if traced:
             order = jnp.asarray(pad(lists.order, bucket(len(lists.order))))
-            tri = np.asarray(frags.tri)[kept]
+            # the fragments grouped by width in one stable sort of the widths' exponents
+            # (a list's width is its own: computed per list, not per fragment); the
+            # groups start where the sorted width changes, and each chunk is a
+            # contiguous slice of the sorted arrays
+            exponent = np.log2(row_widths(lists.length)).astype(np.uint8)[slot]
+            by_width = np.argsort(exponent, kind="stable")
+            slot = slot[by_width]
+            tri = np.asarray(frags.tri)[kept[by_width]]
             first, length = lists.start[slot], lists.length[slot]
-            width = row_widths(length)
-            # the fragments grouped by width in one stable sort (not a pass per width);
-            # the groups start where the sorted width changes
-            by_width = stable_argsort(width)
-            sorted_width = width[by_width]
-            group_start = np.flatnonzero(np.r_[True, sorted_width[1:] != sorted_width[:-1]])
-            widths = sorted_width[group_start]
-            for w, rows in zip(widths, np.split(by_width, group_start[1:])):
-                step = max(1, PAIR_CHUNK // int(w))
-                for s0 in range(0, len(rows), step):
-                    part = rows[s0: s0 + step]
-                    n = bucket(len(part), minimum=min(64, step), steps=ROW_BUCKET_STEPS)
-                    shadow = _trace_rows(jnp.asarray(pad(tri[part], n)),
-                                         jnp.asarray(pad(first[part], n)),
-                                         jnp.asarray(pad(length[part], n)), order, points,
-                                         scale, planes, bound, shadow, width=int(w))
+            sorted_exponent = exponent[by_width]
+            group_start = np.flatnonzero(np.r_[True, sorted_exponent[1:] !=
+                                               sorted_exponent[:-1]])
+            group_end = np.r_[group_start[1:], traced]
+            for g0, g1 in zip(group_start, group_end):
+                w = 1 << int(sorted_exponent[g0])
+                step = max(1, PAIR_CHUNK // w)
+                for s0 in range(g0, g1, step):
+                    s1 = min(s0 + step, g1)
+                    n = bucket(s1 - s0, minimum=min(64, step), steps=ROW_BUCKET_STEPS)
+                    shadow = _trace_rows(jnp.asarray(pad(tri[s0:s1], n)),
+                                         jnp.asarray(pad(first[s0:s1], n)),
+                                         jnp.asarray(pad(length[s0:s1], n)), order, points,
+                                         scale, planes, bound, shadow, width=w)
         # every node of a list is tested once by each kept fragment of its texel (no
         # scatter per pair)
         tests = np.zeros(count, np.int64)
