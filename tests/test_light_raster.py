@@ -314,6 +314,43 @@ def test_raster_computes_only_the_fields_asked_for():
     assert len(full.compact("lo")[0]) == int(np.asarray(full.covered).sum()) > 0
 
 
+@pytest.mark.parametrize("kind", ["ortho", "persp"])
+def test_depth_class_is_the_coverage_and_depth_test(kind):
+    """The fill's depth class equals, fragment by fragment, a NumPy evaluation of the
+    full raster's coverage and ``lo < limit[slot]`` (limits drawn between the fragments'
+    depths, so both outcomes occur); the host triangle and key index equal the device
+    arrays; the field and its limit come together."""
+    cam, tri = _frame(kind, 9)
+    setups = [lr.setup_face(f, tri) for f in cam.faces]
+    keys = np.arange(0, len(cam.faces) * R * R, 3)
+    with lr.x64():
+        full = lr.raster(setups, keys, R, "outer", "corners", 1e-3)
+        n = full.candidates
+        lo = np.asarray(full.lo)[:n]
+        slot = np.asarray(full.slot)[:n]
+        covered = np.asarray(full.covered)[:n]
+        limit = np.random.default_rng(3).uniform(lo.min(), lo.max(), len(keys))
+        limit[:5] = lo.max() + 1.0                        # every fragment of a key kept
+        part = lr.raster(setups, keys, R, "outer", "corners", 1e-3,
+                         fields=("depth_class",), depth_limit=limit)
+        with pytest.raises(ValueError, match="depth_class.*depth_limit"):
+            lr.raster(setups, keys, R, "outer", fields=("depth_class",))
+        with pytest.raises(ValueError, match="depth_class.*depth_limit"):
+            lr.raster(setups, keys, R, "outer", fields=("lo",), depth_limit=limit)
+    assert part.candidates == n and part.lo is None and part.covered is None
+    got = np.asarray(part.depth_class)
+    want = np.where(covered, np.where(lo < limit[slot], lr.NEARER, lr.BEYOND_LIMIT),
+                    lr.NOT_COVERED)
+    assert np.array_equal(got[:n], want)
+    assert (got[n:] == lr.NOT_COVERED).all()
+    assert {lr.NEARER, lr.BEYOND_LIMIT, lr.NOT_COVERED} <= set(want.tolist())
+    index = np.flatnonzero(got[:n] == lr.NEARER)
+    t, k = part.host_tri_slot(index)
+    assert t.dtype == k.dtype == np.int64
+    assert np.array_equal(t, np.asarray(full.tri)[index])
+    assert np.array_equal(k, slot[index])
+
+
 @pytest.mark.parametrize("n,size", [(0, 16), (7, 6 * 16 * 16), (500, 64), (500, 2000)])
 def test_unique_keys_equals_numpy_unique(n, size):
     """Both branches (occupancy table, sort) against np.unique."""

@@ -88,6 +88,9 @@ def trace(tri: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32),
 class WarpEngine:
     """The list build and tracing of ``methods.izb.run_frame`` as Warp kernels."""
 
+    #: what :meth:`trace` reads of the outer fragments (its kernel does the depth test)
+    fragment_fields = ("tri", "slot", "covered", "lo")
+
     def __init__(self, device: str | None = None):
         self.device = device
 

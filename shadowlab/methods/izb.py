@@ -114,14 +114,6 @@ def _pair_test(points, scale, planes, bound, node, tri, count):
     return jnp.zeros(points.shape[0], jnp.int8).at[node].max(hit.astype(jnp.int8))
 
 
-@jax.jit
-def _depth_keep(slot, covered, lo, limit):
-    """Depth culling of the outer fragments (``limit`` [K]: the farthest node's delta plus
-    its margin): kept bool [C] and the number of covered fragments culled."""
-    keep = covered & (lo < limit[slot])
-    return keep, (covered & ~keep).sum()
-
-
 @functools.partial(jax.jit, static_argnames=("width",))
 def _trace_rows(tri, first, length, order, points, scale, planes, bound, shadow, *, width):
     """Kept fragments as rows of ``width`` pairs: fragment f (triangle ``tri`` [F]) tests
@@ -303,8 +295,13 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
         with timer.stage("trace"):
             select = [ok_tri & s.ok for s in setups]
             with lr.x64():
+                # the engine's depth culling needs each list's limit: the farthest node's
+                # delta plus its margin
                 frags = lr.raster(setups, lkeys, r, "outer", tau=tau, select=select,
-                                  fields=("tri", "slot", "covered", "lo"))
+                                  fields=engine.fragment_fields,
+                                  depth_limit=(lists.maxd + lists.maxm
+                                               if "depth_class" in engine.fragment_fields
+                                               else None))
                 shadow, tests_per, traced, depth_culled = engine.trace(
                     frags, lists, points, scale_j, planes, bound_j, s_count)
             # valid casters with a light-space determinant of exactly 0 on a face: test
@@ -368,6 +365,10 @@ class JaxEngine:
     """List build (a stable sort) and tracing (expanded (node, triangle) pairs tested by
     the jitted pair kernel)."""
 
+    #: what :meth:`trace` reads of the outer fragments (``lr.raster``'s fields): the
+    #: raster's fill does the depth culling against the lists' limits
+    fragment_fields = ("depth_class",)
+
     @staticmethod
     def build(slot: np.ndarray, delta: np.ndarray, margin: np.ndarray, k: int) -> Lists:
         """Lists of the samples with ``slot`` [S] >= 0 (their texel's list), ``delta`` [S]
@@ -383,8 +384,8 @@ class JaxEngine:
 
     @staticmethod
     def trace(frags: lr.Fragments, lists: Lists, points, scale, planes, bound, count):
-        """Outer fragments ``frags`` (their smallest delta ``lo``): depth culling against
-        the farthest node, then every node of the list tested: the kept fragments are
+        """Outer fragments ``frags``, depth-culled against the farthest node of their list
+        (field ``depth_class``), then every node of the list tested: the kept fragments are
         grouped by row width (:func:`row_widths`) and each group runs in chunks of at
         most ``PAIR_CHUNK`` pairs (:func:`_trace_rows`). Runs inside ``lr.x64()``.
 
@@ -392,13 +393,13 @@ class JaxEngine:
             shadow bool [count], tests per sample int64 [count], traced fragments,
             depth-culled fragments.
         """
-        k_cap = bucket(len(lists.length))
-        keep, culled = _depth_keep(frags.slot, frags.covered, frags.lo,
-                                   jnp.asarray(pad(lists.maxd + lists.maxm, k_cap)))
-        # the kept fragments' compaction on the host: a compaction over every candidate
-        # costs XLA on the CPU several times more
-        kept = np.flatnonzero(np.asarray(keep)[: frags.candidates])
-        slot = np.asarray(frags.slot)[kept]
+        # the depth test ran in the raster's fill (field depth_class, against the lists'
+        # limits); the kept fragments' compaction on the host: a compaction over every
+        # candidate costs XLA on the CPU several times more
+        depth_class = np.asarray(frags.depth_class)[: frags.candidates]
+        kept = np.flatnonzero(depth_class == lr.NEARER)
+        culled = np.count_nonzero(depth_class == lr.BEYOND_LIMIT)
+        tri, slot = frags.host_tri_slot(kept)
         traced = len(kept)
         shadow = jnp.zeros(points.shape[0], jnp.int8)
         if traced:
@@ -409,8 +410,7 @@ class JaxEngine:
             # contiguous slice of the sorted arrays
             exponent = np.log2(row_widths(lists.length)).astype(np.uint8)[slot]
             by_width = np.argsort(exponent, kind="stable")
-            slot = slot[by_width]
-            tri = np.asarray(frags.tri)[kept[by_width]]
+            slot, tri = slot[by_width], tri[by_width]
             first, length = lists.start[slot], lists.length[slot]
             sorted_exponent = exponent[by_width]
             group_start = np.flatnonzero(np.r_[True, sorted_exponent[1:] !=

@@ -483,7 +483,13 @@ class Fragments:
         covered: bool [C] the coverage test passed (False on the padding);
         lo, hi, centre: float64 [C] the depth plane's min, max and centre over the texel;
         slope: float64 [C] max(|d delta / du|, |d delta / dv|) (per texel);
-        candidates: the exact number of candidate fragments (the rest is padding).
+        depth_class: int8 [C] against the call's ``depth_limit`` [K] of each key:
+            :data:`NOT_COVERED` (and the padding), :data:`BEYOND_LIMIT` (covered, ``lo``
+            at or beyond its key's limit) or :data:`NEARER` (covered, ``lo`` nearer);
+        candidates: the exact number of candidate fragments (the rest is padding);
+        host_segment: int32 [candidates] each fragment's row segment, and
+        segment_tri: int64 [M] each segment's triangle, host copies of what the fill
+            read (:meth:`host_tri_slot`); host_slot: int32 [candidates] the key index.
 
     A field that the :func:`raster` call did not ask for is None.
     """
@@ -495,7 +501,17 @@ class Fragments:
     hi: jax.Array | None
     centre: jax.Array | None
     slope: jax.Array | None
+    depth_class: jax.Array | None
     candidates: int
+    host_segment: np.ndarray
+    segment_tri: np.ndarray
+    host_slot: np.ndarray
+
+    def host_tri_slot(self, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """int64 triangle and key index of the fragments ``index`` [N] (< candidates),
+        from the host arrays (no device array read)."""
+        return (self.segment_tri[self.host_segment[index]],
+                self.host_slot[index].astype(np.int64))
 
     def compact(self, *names: str) -> list[np.ndarray]:
         """NumPy arrays ``names`` of the covered fragments, in candidate order."""
@@ -514,12 +530,17 @@ def x64():
 
 
 #: the per-fragment arrays of :class:`Fragments`, in its order
-FRAGMENT_FIELDS = ("tri", "slot", "covered", "lo", "hi", "centre", "slope")
+FRAGMENT_FIELDS = ("tri", "slot", "covered", "lo", "hi", "centre", "slope", "depth_class")
+#: the fields :func:`raster` computes by default (all but ``depth_class``, which needs a
+#: depth limit)
+DEFAULT_FIELDS = tuple(f for f in FRAGMENT_FIELDS if f != "depth_class")
+#: values of ``Fragments.depth_class``
+NOT_COVERED, BEYOND_LIMIT, NEARER = 0, 1, 2
 
 
 @functools.partial(jax.jit, static_argnames=("resolution", "mode", "inner_test", "t_cap",
                                              "fields"))
-def _raster_kernel(seg, slot, ft, keys, unit, depth, tau, *, resolution, mode,
+def _raster_kernel(seg, slot, ft, keys, unit, depth, tau, limit, *, resolution, mode,
                    inner_test, t_cap, fields):
     """The fill pass: fragment i (its segment ``seg`` [C] and key index ``slot`` [C], -1
     for padding), its texel, coverage and depth range (see :class:`Fragments`), only the
@@ -536,15 +557,21 @@ def _raster_kernel(seg, slot, ft, keys, unit, depth, tau, *, resolution, mode,
     slope = jnp.maximum(jnp.abs(plane[:, 0]), jnp.abs(plane[:, 1]))
     out = {"tri": ftv % t_cap, "slot": slot, "covered": cov, "lo": lo, "hi": hi,
            "centre": centre, "slope": slope}
+    if "depth_class" in fields:
+        nearer = lo < limit[slot]
+        out["depth_class"] = jnp.where(cov, jnp.where(nearer, NEARER, BEYOND_LIMIT),
+                                       NOT_COVERED).astype(jnp.int8)
     return tuple(out[f] for f in fields)
 
 
 def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str,
            inner_test: str = "corners", tau: float = 0.0,
            select: list[np.ndarray] | None = None,
-           fields: tuple[str, ...] = FRAGMENT_FIELDS) -> Fragments:
+           fields: tuple[str, ...] = DEFAULT_FIELDS,
+           depth_limit: np.ndarray | None = None) -> Fragments:
     """Rasterize over sorted texel ``keys`` [K] in ``mode`` (float64, jit-compiled).
-    ``fields``: the :class:`Fragments` arrays to compute (the rest are None).
+    ``fields``: the :class:`Fragments` arrays to compute (the rest are None);
+    ``depth_limit``: float64 [K] per key, needed by (only) the field ``depth_class``.
 
     Two phases: the exact candidate count (:func:`row_segments`), then the fill,
     coverage and depth range of every candidate under ``jax.jit`` at a static capacity
@@ -561,6 +588,9 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
         raise ValueError(f"light_raster.raster: unknown fragment fields {unknown}; allowed: "
                          f"{', '.join(FRAGMENT_FIELDS)}")
     ordered = tuple(f for f in FRAGMENT_FIELDS if f in fields)     # one compiled order
+    if ("depth_class" in fields) != (depth_limit is not None):
+        raise ValueError("light_raster.raster: the field 'depth_class' and the argument "
+                         "depth_limit come together (one without the other was given)")
     face, tri, first, count = row_segments(setups, keys, resolution, select, mode,
                                            inner_test, tau, EPS64)
     t_cap = bucket(max(len(s.unit) for s in setups), minimum=16)
@@ -584,13 +614,17 @@ def raster(setups: list[FaceSetup], keys: np.ndarray, resolution: int, mode: str
     slot = np.full(capacity, -1, np.int32)
     slot[:total] = np.repeat((first - (np.cumsum(count) - count)).astype(np.int32), count)
     slot[:total] += np.arange(total, dtype=np.int32)
+    k_cap = bucket(len(keys))
+    limit = (jnp.zeros(1) if depth_limit is None else
+             jnp.asarray(pad(np.asarray(depth_limit, np.float64), k_cap)))
     out = _raster_kernel(
         jnp.asarray(seg), jnp.asarray(slot), jnp.asarray(pad(face * t_cap + tri, m_cap)),
-        jnp.asarray(pad(keys, bucket(len(keys)))), jnp.asarray(unit), jnp.asarray(depth),
-        jnp.asarray(tau, jnp.float64), resolution=int(resolution), mode=mode,
+        jnp.asarray(pad(keys, k_cap)), jnp.asarray(unit), jnp.asarray(depth),
+        jnp.asarray(tau, jnp.float64), limit, resolution=int(resolution), mode=mode,
         inner_test=inner_test, t_cap=t_cap, fields=ordered)
     computed = dict(zip(ordered, out))
-    return Fragments(**{f: computed.get(f) for f in FRAGMENT_FIELDS}, candidates=total)
+    return Fragments(**{f: computed.get(f) for f in FRAGMENT_FIELDS}, candidates=total,
+                     host_segment=seg[:total], segment_tri=tri, host_slot=slot[:total])
 
 
 def _distance(values, norms, xp):
