@@ -19,6 +19,7 @@ import shadowlab as sl
 from shadowlab.analysis.metrics import compare_hard
 from shadowlab.core.frame import view_samples
 from shadowlab.methods import MethodError
+from shadowlab.methods import izb as mizb
 from shadowlab.reference.boundary import unexplained_mismatches
 from shadowlab.scene import Scene
 from shadowlab.scene import primitives as prim
@@ -140,6 +141,24 @@ def test_front_face_culling_keeps_the_lit_mask(light_name, precision):
     assert len(unexplained_mismatches(scene, gbuf, light, on.lit, truth)) == 0
 
 
+@pytest.mark.parametrize("light_name", ["grazing", "steep", "inside", "above"])
+def test_tight_triangle_boxes_keep_the_lit_mask(light_name, precision, monkeypatch):
+    """The outer raster's triangle boxes, padded by BOX_PAD_TAUS x tau (the default),
+    against boxes padded by at least 10 texels: the same lit mask and shadowed count,
+    and fewer traced fragments (beyond a triangle's box the per-edge outer test still
+    passes texels near acute corners, which hold no sample the triangle can shadow)."""
+    scene, gbuf, light, truth = frame(light_name)
+    extra = {"projection": "cube"} if light_name == "inside" else {}
+    tight = _run(light_name, precision, resolution=256, prepass="none", **extra)
+    monkeypatch.setattr(mizb, "BOX_PAD_TAUS", 1e4)        # tau >= coverage_margin = 1e-3
+    wide = _run(light_name, precision, resolution=256, prepass="none", **extra)
+    assert np.array_equal(tight.lit, wide.lit)
+    assert tight.counters["shadowed"] == wide.counters["shadowed"] > 0
+    assert tight.counters["traced_fragments"] < wide.counters["traced_fragments"]
+    assert tight.counters["tests"] < wide.counters["tests"]
+    assert len(unexplained_mismatches(scene, gbuf, light, tight.lit, truth)) == 0
+
+
 def test_prepass_orderings_are_identities():
     """circle culls a subset of corners; the slope depth a subset of the corner depth."""
     for light_name in ("steep", "inside"):
@@ -241,7 +260,6 @@ def test_csm_prefilter_culls_what_every_receiver_point_would(light_name, monkeyp
     """The CSM computes q only for samples whose own delta lies beyond their texel's
     depth (delta(q) <= delta(p)); the culled set equals the comparison of every sample's
     q (computed here for all of them, as before the prefilter)."""
-    from shadowlab.methods import izb as mizb
 
     seen = {}
     csm, depths = mizb._csm, mizb._csm_depths
@@ -375,7 +393,6 @@ def test_chunked_pair_kernel_equals_one_chunk(monkeypatch):
     """Tracing in many chunks of static capacity (the pair count exceeds the chunk; with
     a chunk of 1 pair, rows wider than a chunk run one per call) gives the same lit mask
     and counters as one chunk: nothing is dropped at chunk borders."""
-    from shadowlab.methods import izb as mizb
 
     scene, gbuf, light, truth = frame("steep")
     opts = dict(prepass="none", resolution=256)
@@ -391,7 +408,6 @@ def test_chunked_pair_kernel_equals_one_chunk(monkeypatch):
 
 
 def test_row_widths_are_the_lengths_rounded_up_to_powers_of_two():
-    from shadowlab.methods import izb as mizb
 
     length = np.array([1, 2, 3, 4, 5, 8, 9, 1023, 1024, 1025])
     assert mizb.row_widths(length).tolist() == [1, 2, 4, 4, 8, 8, 16, 1024, 1024, 2048]

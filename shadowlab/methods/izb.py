@@ -61,6 +61,11 @@ PAPER_PRESET = {"prepass": "csm", "coverage": "corners", "csm_depth": "slope", "
 #: most (triangle, node) pairs, padding included, tested in one call of the pair kernel
 #: (a row wider than this runs alone)
 PAIR_CHUNK = 1 << 20
+#: the outer raster's triangle boxes are padded by this many outer margins tau (texels):
+#: the outer test accepts a texel within tau of every edge, so a box wider than that only
+#: adds texels beyond the triangle's box, which the per-edge test still passes near acute
+#: corners and which hold no sample the triangle can shadow (docs/izb.md, "Tight boxes")
+BOX_PAD_TAUS = 2.0
 #: row capacities per octave of the pair kernel's last chunk of each width
 #: (:func:`core.capacity.bucket`): above the 64-row minimum at most 1/5 of it is padding
 ROW_BUCKET_STEPS = 4
@@ -258,12 +263,13 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
             r = cam.resolution[0]
             face, uv, key, delta_p, depth_p = lr.project_points(cam, samples.position, True)
             keys_all, inv_all = lr.unique_keys(key, len(cam.faces) * r * r)
-            setups = [lr.setup_face(f, scene.triangles) for f in cam.faces]
             tw = float(lr.texel_world_size(cam, face=face, depth=depth_p).min())
             # the largest world coordinate of the casters and the samples (no [T + S, 3]
             # concatenation: each array's own maximum)
             extent = np.array([max_abs(scene.triangles), max_abs(samples.position)])
             tau = coverage_margin + lr.rounding_margin(dtype, extent, tw)
+            setups = [lr.setup_face(f, scene.triangles, pad=BOX_PAD_TAUS * tau)
+                      for f in cam.faces]
             # depth margin (delta units per sample): rounding of world coordinates
             m_world = 64.0 * float(np.finfo(dtype).eps) * float(extent.max())
             m_delta = _delta_slope(cam, delta_p) * m_world

@@ -719,19 +719,20 @@ def program1_covered(edges, vertex_w, absdet, col, row, xp=np):
 
 def rasterize(camera: LightCamera, triangles: np.ndarray, mode: str,
               inner_test: str = "corners", tau: float = 0.0, keys: np.ndarray | None = None,
-              dtype=np.float64, xp=np):
+              dtype=np.float64, xp=np, pad: float = 1.0):
     """All fragments of ``triangles`` [T, 3, 3] on ``camera`` in ``mode``.
 
     Args:
         keys: sorted texel keys to rasterize over (default every texel of every face).
         dtype: evaluation dtype (the set-up is float64, then cast).
+        pad: texels around each triangle's box (:func:`setup_face`).
     Returns:
         tri int64 [N], key int64 [N] of the covered fragments, and the per-face set-ups.
     """
     r = int(camera.resolution[0])
     if keys is None:
         keys = np.arange(len(camera.faces) * r * r, dtype=np.int64)
-    setups = [setup_face(f, triangles) for f in camera.faces]
+    setups = [setup_face(f, triangles, pad) for f in camera.faces]
     tri, slot = candidates(setups, keys, r, None, mode, inner_test, tau,
                            float(np.finfo(dtype).eps))
     key = keys[slot]
