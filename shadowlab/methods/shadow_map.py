@@ -31,6 +31,11 @@ from .registry import Option, register
 RESOLUTIONS = (512, 1024, 2048, 4096, 8192)
 BIASES = ("none", "constant", "slope", "normal")
 PROJECTIONS = ("auto", "perspective", "cube")
+#: texels around each triangle's box: none, since a texel whose centre the triangle
+#: covers has its centre within the triangle's box (the box is the floor of the
+#: projected extremes; a centre outside it is at least half a texel outside, far beyond
+#: the rounding of the edge functions)
+BOX_PAD = 0.0
 
 
 def fit_camera(scene, samples, light, resolution: int, projection: str, padding: int = 1):
@@ -109,7 +114,7 @@ def shadow_map(scene, gbuf, light, *, precision, shadow_eps, resolution, project
             else:
                 look = key[:, None]
             keys = lr.unique_keys(look.ravel(), len(cam.faces) * r * r)[0]
-            setups = [lr.setup_face(f, scene.triangles) for f in cam.faces]
+            setups = [lr.setup_face(f, scene.triangles, pad=BOX_PAD) for f in cam.faces]
             ok = np.any(np.stack([s.ok for s in setups]), axis=0)
         with timer.stage("raster"):
             with lr.x64():
