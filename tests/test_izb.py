@@ -408,7 +408,6 @@ def test_chunked_pair_kernel_equals_one_chunk(monkeypatch):
 
 
 def test_row_widths_are_the_lengths_rounded_up_to_powers_of_two():
-
     length = np.array([1, 2, 3, 4, 5, 8, 9, 1023, 1024, 1025])
     assert mizb.row_widths(length).tolist() == [1, 2, 4, 4, 8, 8, 16, 1024, 1024, 2048]
 

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import shadowlab as sl
+from shadowlab.methods import izb
 from shadowlab.scene.light_camera import fit_light_camera
 from shadowlab.structures import light_raster as lr
 
@@ -148,7 +149,7 @@ def _sat_overlap(uv, i, j, grow):
     return True
 
 
-@pytest.mark.parametrize("pad", [1.0, 2e-3])
+@pytest.mark.parametrize("pad", [1.0, izb.BOX_PAD_TAUS * 1e-3])
 @pytest.mark.parametrize("kind", ["ortho", "persp"])
 def test_outer_mode_is_conservative_and_tight(kind, precision, pad):
     """Every texel square the projected triangle meets (separating axes) is found; a
@@ -193,6 +194,47 @@ def test_standard_mode_needs_no_box_pad(kind, precision):
             assert np.array_equal(t0, t1) and np.array_equal(k0, k1)
             found += len(t0)
     assert found > 500
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e5])
+@pytest.mark.parametrize("kind", ["ortho", "persp"])
+def test_points_of_a_triangle_fall_in_its_tightest_box(kind, offset):
+    """The IZB's box claim with its smallest pad (coverage_margin 0: 2 x the float64
+    rounding margin): every point of a front triangle (vertices, edge points, interior
+    points), projected as the samples are (``project_points``), lies in a texel of the
+    triangle's box; also with the frame 1e5 units from the origin."""
+    cam0, tri = _frame(kind, 11)
+    light = (sl.DirectionalLight(direction=(0.3, -1.0, 0.2)) if kind == "ortho"
+             else sl.PointLight(position=(0.2 + offset, 1.3, 0.1)))
+    tri = tri + (offset, 0.0, 0.0)
+    points = tri.reshape(-1, 3)
+    cam = (fit_light_camera(light, points, resolution=R) if kind == "ortho" else
+           fit_light_camera(light, np.array([[-1.0, -1.0, -1.0], [1.0, -1.0, 1.0]]) +
+                            (offset, 0.0, 0.0), resolution=R, projection="perspective"))
+    face, uv, _, _ = lr.project_points(cam, points)
+    tws = lr.texel_world_size(cam, points)
+    tw = float(tws[tws > 0].min())                  # points in front of the light
+    pad = 2.0 * lr.rounding_margin(np.float64, np.abs(points).max(), tw)
+    setups = [lr.setup_face(f, tri, pad) for f in cam.faces]
+    rng = np.random.default_rng(5)
+    w = np.concatenate([np.eye(3), [[0.5, 0.5, 0.0], [0.0, 0.5, 0.5], [0.5, 0.0, 0.5]],
+                        rng.dirichlet((1.0, 1.0, 1.0), 20)])     # [K, 3] barycentrics
+    checked = 0
+    for f, st in enumerate(setups):
+        for t in np.flatnonzero(st.front & st.ok):
+            p = w @ tri[t]                                          # [K, 3] world points
+            pf, puv, _, _ = lr.project_points(cam, p)
+            on = pf == f
+            if not on.any():
+                continue
+            col0, col1, row0, row1 = st.bbox[t]
+            ij = np.floor(puv[on]).astype(np.int64)
+            inside = (ij[:, 0] >= 0) & (ij[:, 0] < R) & (ij[:, 1] >= 0) & (ij[:, 1] < R)
+            ij = ij[inside]
+            assert ((ij[:, 0] >= col0) & (ij[:, 0] <= col1) & (ij[:, 1] >= row0)
+                    & (ij[:, 1] <= row1)).all(), (t, st.bbox[t], puv[on][inside])
+            checked += len(ij)
+    assert checked > 100
 
 
 def test_jit_equals_numpy():
@@ -353,6 +395,10 @@ def test_depth_class_is_the_coverage_and_depth_test(kind):
         covered = np.asarray(full.covered)[:n]
         limit = np.random.default_rng(3).uniform(lo.min(), lo.max(), len(keys))
         limit[:5] = lo.max() + 1.0                        # every fragment of a key kept
+        # exact ties (lo == limit: culled), on covered fragments of other keys
+        cand = np.flatnonzero(covered & (slot >= 5))
+        tie = cand[np.unique(slot[cand], return_index=True)[1]][::7][:20]   # one per key
+        limit[slot[tie]] = lo[tie]
         part = lr.raster(setups, keys, R, "outer", "corners", 1e-3,
                          fields=("depth_class",), depth_limit=limit)
         with pytest.raises(ValueError, match="depth_class.*depth_limit"):
@@ -366,6 +412,7 @@ def test_depth_class_is_the_coverage_and_depth_test(kind):
     assert np.array_equal(got[:n], want)
     assert (got[n:] == lr.NOT_COVERED).all()
     assert {lr.NEARER, lr.BEYOND_LIMIT, lr.NOT_COVERED} <= set(want.tolist())
+    assert (got[tie] == lr.BEYOND_LIMIT).all() and len(tie) > 5
     index = np.flatnonzero(got[:n] == lr.NEARER)
     t, k = part.host_tri_slot(index)
     assert t.dtype == k.dtype == np.int64

@@ -194,6 +194,9 @@ def test_max_abs_equals_numpy_abs_max(dtype):
     assert np.isnan(max_abs(np.array([1.0, np.nan], dtype)))
     assert max_abs(np.zeros((0, 3), dtype)) == 0.0
     assert max_abs(np.array([-0.0], dtype)) == 0.0
+    # integers take np.abs (negating the minimum would wrap)
+    assert max_abs(np.array([-2 ** 31, 5], np.int32)) == 2.0 ** 31
+    assert max_abs(np.array([3, 250], np.uint8)) == 250.0
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

@@ -10,6 +10,12 @@ engines' ``trace`` alternately on the same arguments, after a first call of each
 compiles and checks that both return the same shadow mask, per-sample tests and
 fragment counts.
 
+Both engines get the fragments the working tree's raster made for its own engine. Since
+c28f096 that engine reads only the fill's ``depth_class`` (the depth test moved into
+the fill), so a base before c28f096, whose engine reads the triangle, slot, coverage and
+minimum depth, cannot be compared with this script: compare whole frames with
+``commit_ab.py`` instead.
+
 usage: python docs/repro/izb_trace_ab.py BASE REPS OUT.json "SCENE [k=v ...]" ...
   e.g. python docs/repro/izb_trace_ab.py aa8ecb5 7 out.json "fuzzy triangles=100000"
 """

@@ -264,8 +264,12 @@ def unpack_interval(words):
 
 def max_abs(x: np.ndarray) -> float:
     """The largest ``|x|`` over every element of ``x`` (0.0 when empty; NaN if any is
-    NaN), as ``np.abs(x).max(initial=0.0)`` without its temporary the size of ``x``."""
+    NaN), as ``np.abs(x).max(initial=0.0)`` without its temporary the size of ``x`` for
+    floating-point input (other dtypes take that expression: negating an integer minimum
+    can wrap)."""
     x = np.asarray(x)
+    if not np.issubdtype(x.dtype, np.floating):
+        return float(np.abs(x.astype(np.float64)).max(initial=0.0))
     if x.size == 0:
         return 0.0
-    return float(np.maximum(np.maximum(x.max(), -x.min()), 0.0))
+    return float(np.maximum(x.max(), -x.min()))

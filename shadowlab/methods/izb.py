@@ -64,7 +64,10 @@ PAIR_CHUNK = 1 << 20
 #: the outer raster's triangle boxes are padded by this many outer margins tau (texels):
 #: the outer test accepts a texel within tau of every edge, so a box wider than that only
 #: adds texels beyond the triangle's box, which the per-edge test still passes near acute
-#: corners and which hold no sample the triangle can shadow (docs/izb.md, "Tight boxes")
+#: corners and which hold no sample the triangle can shadow (docs/izb.md, "Tight boxes").
+#: tau is at least the rounding margin (coverage_margin may be 0); where tau exceeds half
+#: a texel (float32 far from the frame origin) the pad is wider than the one texel it
+#: replaced, and the outer margin is then honoured in full
 BOX_PAD_TAUS = 2.0
 #: row capacities per octave of the pair kernel's last chunk of each width
 #: (:func:`core.capacity.bucket`): above the 64-row minimum at most 1/5 of it is padding
@@ -134,9 +137,9 @@ def _trace_rows(tri, first, length, order, points, scale, planes, bound, shadow,
 
 
 def row_widths(length: np.ndarray) -> np.ndarray:
-    """int64 [F]: the row width of each kept fragment, its list ``length`` (>= 1) rounded
-    up to a power of two (rows of one width share a compiled kernel; at most half of a
-    row is padding)."""
+    """int64 [K]: the row width of each list of ``length`` [K] (>= 1) nodes, the length
+    rounded up to a power of two, which every kept fragment of the list uses (rows of
+    one width share a compiled kernel; at most half of a row is padding)."""
     return np.left_shift(1, np.ceil(np.log2(length)).astype(np.int64))
 
 
@@ -285,8 +288,9 @@ def run_frame(scene, gbuf, light, engine, *, precision, shadow_eps, prepass, res
                                        projection, padding=csm_scale)
                     c_face, _, c_key, c_delta = lr.project_points(c_cam, samples.position)
                     c_keys = lr.unique_keys(c_key, len(c_cam.faces) * c_cam.resolution[0] ** 2)
-                    c_setups = [lr.setup_face(f, scene.triangles) for f in c_cam.faces]
                     c_tau = coverage_margin + lr.rounding_margin(dtype, extent, tw / csm_scale)
+                    c_setups = [lr.setup_face(f, scene.triangles, pad=BOX_PAD_TAUS * c_tau)
+                                for f in c_cam.faces]
                     c_m = _delta_slope(c_cam, c_delta) * m_world
                 culled, csm_texels, csm_small = _csm(
                     c_cam, c_setups, samples, light_h, c_face, c_keys, c_delta, c_m, ok_tri,

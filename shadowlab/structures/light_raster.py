@@ -129,7 +129,9 @@ def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> Face
     and ``einsum`` picked the order.
 
     Args:
-        pad: texels added around each bounding box (covers the outer test's margin).
+        pad: texels added around each bounding box: the standard (centre) and inner
+            tests need none, the outer test at least its margin tau (the shadow map
+            passes 0, the IZB 2 tau; the default of one texel covers margins up to 1).
     """
     tri = np.asarray(triangles, dtype=np.float64)
     n = len(tri)
@@ -170,7 +172,7 @@ def setup_face(face: LightFace, triangles: np.ndarray, pad: float = 1.0) -> Face
     norm = np.empty((3, n))
     for i in range(3):
         np.hypot(edge[i, 0], edge[i, 1], out=norm[i])
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # meaningful where front; the boxes below read them only there
         u = [h[i][0] / w[i] for i in range(3)]
         v = [h[i][1] / w[i] for i in range(3)]
@@ -545,7 +547,8 @@ def _raster_kernel(seg, slot, ft, keys, unit, depth, tau, limit, *, resolution, 
     """The fill pass: fragment i (its segment ``seg`` [C] and key index ``slot`` [C], -1
     for padding), its texel, coverage and depth range (see :class:`Fragments`), only the
     arrays ``fields`` (the others are never written: each is a full [C] pass of memory).
-    Padding fragments are not covered and have slot 0."""
+    Padding fragments are not covered and have slot 0. ``limit``: float64 [K padded]
+    depth limit per key, read only for the field ``depth_class`` (else a dummy [1])."""
     valid = slot >= 0
     slot = jnp.maximum(slot, 0)
     ftv = ft[seg]
