@@ -136,11 +136,17 @@ def _trace_rows(tri, first, length, order, points, scale, planes, bound, shadow,
     return shadow.at[node].max(hit.astype(jnp.int8))
 
 
+def row_width_exponents(length: np.ndarray) -> np.ndarray:
+    """uint8 [K]: ``ceil(log2(length))`` of each list of ``length`` [K] (>= 1) nodes, the
+    exponent of its row width (:func:`row_widths`)."""
+    return np.ceil(np.log2(length)).astype(np.uint8)
+
+
 def row_widths(length: np.ndarray) -> np.ndarray:
     """int64 [K]: the row width of each list of ``length`` [K] (>= 1) nodes, the length
     rounded up to a power of two, which every kept fragment of the list uses (rows of
     one width share a compiled kernel; at most half of a row is padding)."""
-    return np.left_shift(1, np.ceil(np.log2(length)).astype(np.int64))
+    return np.left_shift(1, row_width_exponents(length).astype(np.int64))
 
 
 def pair_shadows(points, scale, planes, bound, node: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -418,7 +424,7 @@ class JaxEngine:
             # (a list's width is its own: computed per list, not per fragment); the
             # groups start where the sorted width changes, and each chunk is a
             # contiguous slice of the sorted arrays
-            exponent = np.log2(row_widths(lists.length)).astype(np.uint8)[slot]
+            exponent = row_width_exponents(lists.length)[slot]
             by_width = np.argsort(exponent, kind="stable")
             slot, tri = slot[by_width], tri[by_width]
             first, length = lists.start[slot], lists.length[slot]
