@@ -33,13 +33,16 @@ from shadowlab.methods import registry
 from shadowlab.reference.boundary import unexplained_count
 from shadowlab.scene.procedural import default_view
 
+#: the paper's general path (every triangle casts): the variants of its Tables 5-6 run it;
+#: the method's default is the 2-manifold fast path (the "manifold" variant)
+GENERAL = {"manifold": "off"}
 VARIANTS = {
-    "zpass": {},
-    "zpass+a": {"cull_sides": "exact"},
-    "zfail": {"stencil": "zfail"},
-    "zfail+a": {"stencil": "zfail", "cull_sides": "exact"},
-    "zfail+c": {"stencil": "zfail", "front_cap": "infinity"},
-    "zfail+ac": {"stencil": "zfail", "front_cap": "infinity", "cull_sides": "exact"},
+    "zpass": GENERAL,
+    "zpass+a": {**GENERAL, "cull_sides": "exact"},
+    "zfail": {**GENERAL, "stencil": "zfail"},
+    "zfail+a": {**GENERAL, "stencil": "zfail", "cull_sides": "exact"},
+    "zfail+c": {**GENERAL, "stencil": "zfail", "front_cap": "infinity"},
+    "zfail+ac": {**GENERAL, "stencil": "zfail", "front_cap": "infinity", "cull_sides": "exact"},
     "manifold": {"manifold": "closed"},
     "paper zpass": {"preset": "paper"},
     "paper zfail": {"preset": "paper", "stencil": "zfail"},

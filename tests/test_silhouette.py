@@ -10,9 +10,11 @@ import pytest
 
 import shadowlab as sl
 from shadowlab.engines.silhouette_bins import cone_facets
+from shadowlab.geometry.caster_culling import front_face_culled
 from shadowlab.geometry.clip_visibility import side_visible
 from shadowlab.methods.silhouette import record_multiplicity, triangle_signs
 from shadowlab.scene.procedural import default_view, grazing_sheet
+from shadowlab.scene.view import hard_light
 
 RES = (32, 32)
 
@@ -123,27 +125,42 @@ def test_variants_equal_the_reference_on_soup(opts, precision):
         assert res.counters["cap_triangles"] == 2 * res.counters["casters"]
 
 
+@pytest.mark.parametrize("manifold", ["off", "closed"])
 @pytest.mark.parametrize("stencil", ["zpass", "zfail"])
-def test_directional_light_and_closed_meshes(stencil, precision):
+def test_directional_light_and_closed_meshes(stencil, manifold, precision):
     scene, gbuf, light = _frame("sphere_grid", directional=True)
     truth = sl.reference_shadows(scene, gbuf, light)
     res = sl.compute_shadows(scene, gbuf, light, method="silhouette", precision=precision,
-                             stencil=stencil, chunk=4)
+                             stencil=stencil, manifold=manifold, chunk=4)
     assert 0 < int((~truth & gbuf.valid).sum())
     assert int(((res.lit != truth) & gbuf.valid).sum()) == 0
     c = res.counters
-    # closed spheres: silhouette edges have |m| = 2, the ground's open edges |m| = 1
-    assert c["side_quads"] > c["silhouette_edges"]
+    if manifold == "off":
+        # closed spheres: silhouette edges have |m| = 2, the ground's open edges |m| = 1
+        assert c["side_quads"] > c["silhouette_edges"]
+        assert c["front_face_culled"] == 0
+    else:
+        # only the light-facing half casts: every silhouette edge has |m| = 1
+        assert c["side_quads"] == c["silhouette_edges"]
+        assert c["front_face_culled"] > 0
     assert c["cap_triangles"] == (c["casters"] if stencil == "zfail" else 0)
 
 
 def test_manifold_fast_path_halves_the_closed_sides():
+    """The default (manifold="closed") against the paper's general path: the same lit
+    mask with the closed spheres' light-averted triangles dropped (the shared rule)."""
     scene, gbuf, light = _frame("sphere_grid")
-    full = sl.compute_shadows(scene, gbuf, light, method="silhouette")
-    fast = sl.compute_shadows(scene, gbuf, light, method="silhouette", manifold="closed")
+    full = sl.compute_shadows(scene, gbuf, light, method="silhouette", manifold="off")
+    fast = sl.compute_shadows(scene, gbuf, light, method="silhouette")
+    assert fast.options["manifold"] == "closed"
     assert np.array_equal(full.lit, fast.lit)
-    assert fast.counters["casters"] < full.counters["casters"]
+    dropped = full.counters["casters"] - fast.counters["casters"]
+    assert dropped == fast.counters["front_face_culled"] > 0
+    assert dropped <= int(front_face_culled(scene, hard_light(light).homogeneous).sum())
     assert fast.counters["side_quads"] < full.counters["side_quads"]
+    assert fast.counters["stencil_updates"] < full.counters["stencil_updates"]
+    assert sl.compute_shadows(scene, gbuf, light, method="silhouette",
+                              preset="paper").options["manifold"] == "off"
 
 
 def test_exact_culling_keeps_the_result_and_the_paper_test_culls_visible_sides():

@@ -38,8 +38,8 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
             "their light-space footprint (receiver-driven culling)"),
     # per-triangle shadow volumes over a hierarchy (clustered_ptsv, ptsv)
     Counter("front_face_culled", "int", "triangles of closed objects dropped by face culling "
-            "(clustered_ptsv, ptsv: the side given by the cull_side option; izb: the side "
-            "facing away from the light)"),
+            "(clustered_ptsv, ptsv: the side given by the cull_side option; izb and "
+            "silhouette's manifold='closed': the side facing away from the light)"),
     Counter("node_tests", "int", "existing child nodes tested against a shadow volume"),
     Counter("trivial_accepts", "int", "nodes found entirely inside a shadow volume"),
     Counter("trivial_rejects", "int", "nodes found entirely outside a shadow volume (by a "

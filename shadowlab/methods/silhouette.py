@@ -43,7 +43,7 @@ from ..engines.silhouette_bins import (batch_arrays, cap_shapes, farthest_depth,
                                       unbatch)
 from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
                                           edge_table, side_kernel, vertex_terms)
-from ..geometry.caster_culling import light_outside_objects
+from ..geometry.caster_culling import front_face_culled
 from ..geometry.clip_visibility import CULL_MODES, side_visible
 from ..geometry.triangle_setup import shadow_volume_planes
 from ..scene.view import PointLight, hard_light
@@ -53,9 +53,11 @@ MULTIPLICITY = ("sorted", "unsorted", "planes")
 
 #: the paper's own choices (``preset="paper"``): visibility test of Algorithms 3-6, front
 #: cap at infinity (eq. 6) with ZFAIL, only exactly coplanar lights cull a triangle, and
-#: the GPU's depth test against the sample itself (no receiver bias).
+#: the GPU's depth test against the sample itself (no receiver bias); and the general path
+#: for arbitrary meshes, every triangle casting (its 2-manifold variant, GS2M, is the
+#: default here: the same lit mask, half the casters of a closed object).
 PAPER_PRESET = {"cull_sides": "paper", "front_cap": "infinity", "degenerate": "paper",
-                "bias": "none"}
+                "bias": "none", "manifold": "off"}
 
 
 @jax.jit
@@ -138,24 +140,6 @@ def record_multiplicity(adj, s_t: np.ndarray, verts: np.ndarray, light, multipli
     return np.where(slot, contrib, 0).sum(axis=1).astype(np.int32)
 
 
-def _permutation_parity(faces: np.ndarray) -> np.ndarray:
-    """int [m]: +1 if sorting each row of distinct ints [m, 3] is an even permutation."""
-    f = faces.astype(np.int64)
-    s = np.sign(f[:, 1] - f[:, 0]) * np.sign(f[:, 2] - f[:, 0]) * np.sign(f[:, 2] - f[:, 1])
-    return np.where(s == 0, 1, s)
-
-
-def _object_orientation(scene) -> np.ndarray:
-    """int [objects]: sign of each object's signed volume (float64, about its centre)."""
-    tri = scene.triangles
-    centre = tri.reshape(-1, 3).mean(axis=0)
-    t = tri - centre
-    vol = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2]))
-    per = np.zeros(scene.num_objects)
-    np.add.at(per, scene.object_id, vol)
-    return np.where(per < 0, -1, 1)
-
-
 def eye_in_volumes(scene, eye: np.ndarray, light_h: np.ndarray, active: np.ndarray) -> int:
     """Number of active triangles whose shadow volume contains the eye (float64).
 
@@ -218,13 +202,14 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             active = adj.kept & (s_t != 0)
             if degenerate == "cull":
                 active &= np.asarray(valid)[:m_tri]
+            face_culled = 0
             if manifold == "closed":
-                closed = np.array([o.closed for o in scene.report().objects], bool)
-                # a closed object around the light casts through its averted triangles
-                closed = light_outside_objects(scene, lh, closed)[: len(closed)]
-                orient = _object_orientation(scene)
-                facing = orient[scene.object_id] * _permutation_parity(faces) * s_t > 0
-                active &= ~closed[scene.object_id] | facing
+                # the shared exact rule (closed objects' light-averted triangles, none of
+                # an object around the light); any subset of casters keeps the silhouette
+                # a closed cycle, since a triangle's three edges share its s_T
+                averted = front_face_culled(scene, lh, "averted")
+                face_culled = int((active & averted).sum())
+                active &= ~averted
             s_t = np.where(active, s_t, 0).astype(np.int32)
             m_rec = record_multiplicity(adj, s_t, verts, light_j, multiplicity)
             sil = np.flatnonzero(m_rec)
@@ -351,7 +336,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
     rep = adj.report
     counters = {
         "samples": samples.count, "casters": casters, "culled_triangles": m_tri - casters,
-        "edges": rep.records, "open_edges": rep.open_edges,
+        "front_face_culled": face_culled, "edges": rep.records, "open_edges": rep.open_edges,
         "nonmanifold_edges": rep.nonmanifold_edges,
         "silhouette_edges": int(len(sil)), "side_quads": int(np.abs(m_rec).sum()),
         "culled_sides": culled, "cap_triangles": int(cap_triangles),
@@ -384,8 +369,8 @@ register(
     doc="silhouette shadow volumes for arbitrary meshes: per-edge multiplicity, sides "
         "extruded |m| times, caps, exact software stencil (ZPASS/ZFAIL)",
     paper="Pečiva 2013", kind="exact", presets={"paper": PAPER_PRESET},
-    counters=("samples", "casters", "culled_triangles", "edges", "open_edges",
-              "nonmanifold_edges", "silhouette_edges", "side_quads", "culled_sides",
+    counters=("samples", "casters", "culled_triangles", "front_face_culled", "edges",
+              "open_edges", "nonmanifold_edges", "silhouette_edges", "side_quads", "culled_sides",
               "cap_triangles", "stencil_updates", "stencil_updates_per_pixel",
               "side_tests", "cap_tests", "cap_crossings_per_pixel", "negative_stencil",
               "eye_in_volumes", "shadowed", "lit"),
@@ -400,9 +385,11 @@ register(
                                "evaluations that leak)", allowed=MULTIPLICITY),
         "front_cap": Option("true", "ZFAIL front cap: 'true' (the triangle) or 'infinity' "
                             "(moved to the far plane, eq. 6)", allowed=("true", "infinity")),
-        "manifold": Option("off", "'closed': closed objects cast from their light-facing "
-                           "triangles only (the 2-manifold fast path)",
-                           allowed=("off", "closed")),
+        "manifold": Option("closed", "'closed': closed objects cast from their "
+                           "light-facing triangles only (the 2-manifold fast path, the "
+                           "shared exact averted culling; objects around a point light keep "
+                           "every triangle); 'off': every triangle casts (the paper's "
+                           "general path)", allowed=("off", "closed")),
         "adjacency": Option("object", "edge adjacency per 'object' (as the paper's buffers) "
                             "or across the 'scene'", allowed=("object", "scene")),
         "max_opposite": Option(2, "opposite vertices per edge record (longer edges are "
