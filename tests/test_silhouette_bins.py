@@ -85,6 +85,41 @@ def test_the_grid_spans_the_core_of_q_and_an_outlier_lands_in_a_border_cell():
     assert grid.box_corners()[:, 0].max() >= 60.0             # all q still in the box
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("behind", [0, 7])
+def test_sample_grid_layout_against_a_plain_loop(dtype, behind):
+    """Every sample sits in its cell's blocks, in order of depth within the cell (ties in
+    sample order); each block's depth range, its cell and its q rows match a per-sample
+    loop; samples behind the eye (``behind`` of them) go to the extra cell, depth inf."""
+    rng = np.random.default_rng(5)
+    s = 3000
+    q = np.stack([rng.uniform(-1, 1, s), rng.uniform(-1, 1, s),
+                  -rng.choice([1.0, 2.0, 3.0], s)], 1)       # repeated depths: ties
+    q[rng.choice(s, behind, replace=False), 2] *= -1.0
+    q = q.astype(dtype)
+    basis = (np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]))
+    grid = bins.sample_grid(q, basis, (64, 48), tile=16, block=8)
+    q64 = q.astype(np.float64)
+    z = -q64[:, 2]
+    good = z > 0
+    assert np.array_equal(grid.cell == grid.cells, ~good)
+    for c in np.unique(grid.cell):
+        members = np.flatnonzero(grid.cell == c)
+        depth = np.where(good[members], z[members], np.inf)
+        want = members[np.lexsort((members, depth))]       # by depth, ties by index
+        slots = grid.slot[want]
+        first = slots[0] // grid.block
+        assert np.array_equal(slots, first * grid.block + np.arange(len(want)))
+        for b in range(first, first + -(-len(want) // grid.block)):
+            inside = want[(slots // grid.block) == b]
+            assert grid.block_cell[b] == c
+            assert grid.zmax[b] == (z[inside].max() if good[inside].all() else np.inf)
+            assert grid.zmin[b] == (z[inside].min() if good[inside].all() else -np.inf)
+            np.testing.assert_array_equal(grid.q[b][: len(inside)], q[inside])
+            assert not grid.q[b][len(inside):].any()
+    assert not grid.q[-1].any() and grid.q.dtype == dtype
+
+
 def _unbinned_small_grid(stencil, precision):
     """2 x 2 spheres of 200 triangles at 32x32 and their unbinned silhouette result:
     (scene, gbuf, light, result)."""
