@@ -694,10 +694,27 @@ def batch_arrays(grid: SampleGrid, bins: ScreenBins):
             ln.max(axis=1), entries)
 
 
-def unbatch(grid: SampleGrid, blocks: np.ndarray, out) -> np.ndarray:
-    """Per-sample values [S] from a binned kernel's output [C, N, B] (blocks [C, N])."""
+def unbatch(grid: SampleGrid, blocks: np.ndarray, *outs) -> list[np.ndarray]:
+    """Per-sample int64 values [S] from each binned kernel output [C, N, B] of ``outs``
+    (blocks int32 [C, N]: the block of each lane group, :func:`batch_arrays`).
+
+    Each block's lanes are read from one of its places (a gather), and the other parts
+    of a split list are added to them; padding entries (the zero block) are dropped.
+    """
     b = grid.block
-    lane = (np.asarray(blocks, np.int64).reshape(-1, 1) * b + np.arange(b)).reshape(-1)
-    # a split list's parts add up (float64 sums of int32 counts: exact below 2^53)
-    flat = np.bincount(lane, weights=np.asarray(out).reshape(-1), minlength=len(grid.q) * b)
-    return flat.astype(np.int64)[grid.slot]
+    n_real = len(grid.block_cell)
+    blocks = np.asarray(blocks, np.int64).reshape(-1)
+    place = np.arange(len(blocks))
+    where = np.zeros(n_real + 1, np.int64)
+    where[blocks] = place                   # one place per block (every block has one)
+    extra = place[(where[blocks] != place) & (blocks < n_real)]
+    extra_lane = (blocks[extra, None] * b + np.arange(b)).reshape(-1)
+    result = []
+    for out in outs:
+        lanes = np.asarray(out).reshape(len(blocks), b)
+        per_block = lanes[where].astype(np.int64).reshape(-1)
+        if len(extra):      # float64 sums of int32 counts: exact below 2^53
+            per_block += np.bincount(extra_lane, weights=lanes[extra].reshape(-1),
+                                     minlength=len(per_block)).astype(np.int64)
+        result.append(per_block[grid.slot])
+    return result

@@ -264,7 +264,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             sten, upd = timer.run("stencil", binned_side_kernel(zfail), q_blocks,
                                   *map(jnp.asarray, args), jnp.asarray(table),
                                   jnp.asarray(m_pad), jnp.asarray(w_pad), zero)
-            sten, upd = (unbatch(grid, args[0], x) for x in (sten, upd))
+            sten, upd = unbatch(grid, args[0], sten, upd)
             side_tests = sb.tests
         else:
             sten, upd = timer.run("stencil", side_kernel(chunk, zfail), q_rel,
@@ -311,7 +311,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                     args = batch_arrays(grid, sb)
                 cs, cu = timer.run("caps", binned_cap_kernel(span, back), q_blocks,
                                    *map(jnp.asarray, args), edges3, terms, signs, zero)
-                cs, cu = (unbatch(grid, args[0], x) for x in (cs, cu))
+                cs, cu = unbatch(grid, args[0], cs, cu)
                 cap_tests += sb.tests
             else:
                 cs, cu = timer.run("caps", cap_kernel(chunk, span, back), q_rel, edges3,
