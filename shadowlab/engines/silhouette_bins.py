@@ -185,7 +185,8 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     every = bool(good.all())        # the usual case: no masked copies of 1M columns
     shape = (max(1, -(-image_shape[1] // tile)), max(1, -(-image_shape[0] // tile)))
     lo, scale, box = [], [], []
-    for x, n in ((uq if every else uq[good], shape[0]), (vq if every else vq[good], shape[1])):
+    for x, n in ((uq if every else uq[good], shape[0]),
+                 (vq if every else vq[good], shape[1])):
         a, b = core_range(x)
         lo.append(a)
         scale.append(n / (b - a) if b > a else 0.0)

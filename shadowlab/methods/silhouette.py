@@ -336,7 +336,8 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
     rep = adj.report
     counters = {
         "samples": samples.count, "casters": casters, "culled_triangles": m_tri - casters,
-        "front_face_culled": face_culled, "edges": rep.records, "open_edges": rep.open_edges,
+        "front_face_culled": face_culled, "edges": rep.records,
+        "open_edges": rep.open_edges,
         "nonmanifold_edges": rep.nonmanifold_edges,
         "silhouette_edges": int(len(sil)), "side_quads": int(np.abs(m_rec).sum()),
         "culled_sides": culled, "cap_triangles": int(cap_triangles),
@@ -370,7 +371,8 @@ register(
         "extruded |m| times, caps, exact software stencil (ZPASS/ZFAIL)",
     paper="Pečiva 2013", kind="exact", presets={"paper": PAPER_PRESET},
     counters=("samples", "casters", "culled_triangles", "front_face_culled", "edges",
-              "open_edges", "nonmanifold_edges", "silhouette_edges", "side_quads", "culled_sides",
+              "open_edges", "nonmanifold_edges", "silhouette_edges", "side_quads",
+              "culled_sides",
               "cap_triangles", "stencil_updates", "stencil_updates_per_pixel",
               "side_tests", "cap_tests", "cap_crossings_per_pixel", "negative_stencil",
               "eye_in_volumes", "shadowed", "lit"),
