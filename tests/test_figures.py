@@ -126,6 +126,23 @@ def test_claims_are_recorded_and_enforced_only_where_required(tmp_path, required
     assert meta["claims"][1]["measured"] == "3"
 
 
+def test_an_untested_claim_is_recorded_and_not_enforced(tmp_path):
+    """holds=None (with a note) is written as null and does not fail require_claims."""
+    import json
+
+    toy = _TOY.replace('"holds": bool(arrays["x"].sum() == 4)}]',
+                       '"holds": None, "note": "x is empty here"}]')
+    assert toy != _TOY
+    (tmp_path / "experiments").mkdir()
+    (tmp_path / "configs" / "experiments").mkdir(parents=True)
+    (tmp_path / "experiments" / "toy.py").write_text(toy)
+    (tmp_path / "configs" / "experiments" / "toy.ci.toml").write_text("require_claims = true\n")
+    run_experiment(tmp_path, "toy", "ci", out=tmp_path / "figures")       # no ClaimFailed
+    meta = json.loads((tmp_path / "figures" / "toy.json").read_text())
+    assert meta["claims"][1]["holds"] is None
+    assert meta["claims"][1]["note"] == "x is empty here"
+
+
 def test_a_failing_timing_claim_is_recorded_but_never_enforced(tmp_path):
     """require_claims enforces counts, never run times (claims.TIMED)."""
     import json

@@ -84,6 +84,28 @@ def test_verdicts_and_run_sizes_are_shown():
         "not measured"
 
 
+def test_an_untested_claim_is_neither_a_pass_nor_a_failure():
+    """holds=None (the run could not test the claim, e.g. 0 of 0 culled) needs a note,
+    reads 'untested' alone, and is left out of the verdict beside tested records."""
+    mod = types.SimpleNamespace(claims=lambda a, c: [
+        {"id": "s14.fig6.le_ptsv", "claim": "x", "measured": "0 of 0", "holds": None}])
+    with pytest.raises(ExperimentError, match="needs a note"):
+        measure_claims(mod, {}, {})
+    mod = types.SimpleNamespace(claims=lambda a, c: [
+        {"id": "s14.fig6.le_ptsv", "claim": "x", "measured": "0 of 0", "holds": None,
+         "note": "nothing culled"}])
+    (got,) = measure_claims(mod, {}, {})
+    assert got["holds"] is None
+    runs = {"e": {"experiment": "e", "size": "full", "config": {}, "_stale": False,
+                  "provenance": {"commit": "0123456789"}, "claims": [got]}}
+    row = {r["id"]: r for r in ledger.rows(runs)}["s14.fig6.le_ptsv"]
+    assert row["verdict"] == "untested" and row["why"] == "nothing culled"
+    runs["e"]["claims"].append(registry.measured("s14.fig6.le_ptsv", "2 of 5", False))
+    row = {r["id"]: r for r in ledger.rows(runs)}["s14.fig6.le_ptsv"]
+    assert row["verdict"] == "fails"
+    assert "| paper | claims | holds | fails | untested | not measured |" in ledger.render(runs)
+
+
 def test_runs_table_states_the_recorded_load():
     from shadowlab.harness.ledger import _load_label
 

@@ -8,7 +8,8 @@ opens as a notebook) with
 - ``check(arrays, cfg) -> None`` (optional): raise AssertionError if the arrays
   break an invariant (exactness, equal work, monotone counts): a bug, at any size;
 - ``claims(arrays, cfg) -> list[dict]`` (optional): the paper's claims measured on our
-  scenes, each ``{"claim": str, "measured": str, "holds": bool}`` with optional ``"id"``
+  scenes, each ``{"claim": str, "measured": str, "holds": bool | None}`` (None: the
+  run could not test it, with a ``"note"`` saying why) with optional ``"id"``
   (the claim's id in :mod:`shadowlab.harness.claims`, which the ledger
   ``docs/claims.md`` joins on) and ``"note"``. They are results,
   not invariants: written to the JSON and printed, and enforced only where the config
@@ -56,7 +57,11 @@ class ClaimFailed(AssertionError):
 def measure_claims(module, arrays: dict, cfg: dict) -> list[dict]:
     """The experiment's claims (``module.claims``), validated: [{claim, measured, holds}],
     each with the optional keys ``id`` (a registered claim id,
-    :mod:`shadowlab.harness.claims`) and ``note`` (one line on the measurement)."""
+    :mod:`shadowlab.harness.claims`) and ``note`` (one line on the measurement).
+
+    ``holds`` is True, False, or None where the run could not test the claim (e.g. a
+    claim about culled samples on a frame where nothing is culled: "0 of 0" must not
+    read as a pass); None needs a ``note`` saying why."""
     from . import claims as registry
 
     if not hasattr(module, "claims"):
@@ -68,8 +73,11 @@ def measure_claims(module, arrays: dict, cfg: dict) -> list[dict]:
                                                                "id", "note"}:
             raise ExperimentError("a claim needs the keys claim, measured, holds (optional: "
                                   f"id, note); got {sorted(c)}")
+        if c["holds"] is None and not c.get("note"):
+            raise ExperimentError(f"claim {c['claim']!r}: an untested claim (holds=None) "
+                                  "needs a note saying why it could not be tested")
         out = {"claim": str(c["claim"]), "measured": str(c["measured"]),
-               "holds": bool(c["holds"])}
+               "holds": None if c["holds"] is None else bool(c["holds"])}
         if "id" in c:
             if c["id"] not in registry.BY_ID:
                 raise ExperimentError(f"claim {c['claim']!r}: unknown claim id {c['id']!r} "
@@ -149,6 +157,11 @@ def load_experiment_config(root: Path, name: str, size: str) -> dict:
         raise ExperimentConfigError(str(exc)) from exc
 
 
+def claim_label(c: dict) -> str:
+    """'holds', 'FAILS' or 'untested' (``holds`` None: the run could not test it)."""
+    return "untested" if c["holds"] is None else ("holds" if c["holds"] else "FAILS")
+
+
 def run_as_script(file: str, size: str = "ci") -> dict:
     """``python experiments/<name>.py``: run the experiment at ``size``, check it, print
     its claims and draw the figure, writing nothing; return the arrays."""
@@ -159,7 +172,7 @@ def run_as_script(file: str, size: str = "ci") -> dict:
     if hasattr(module, "check"):
         module.check(arrays, cfg)
     for c in measure_claims(module, arrays, cfg):
-        print(f"[{'holds' if c['holds'] else 'FAILS'}] {c['claim']}: {c['measured']}")
+        print(f"[{claim_label(c)}] {c['claim']}: {c['measured']}")
     module.plot(arrays)
     return arrays
 
@@ -201,14 +214,14 @@ def run_experiment(root: Path, name: str, size: str = "ci", out: Path | None = N
     io.write_json(out / f"{name}.json", meta)
     checkpoint.discard()
     for c in found:
-        print(f"  [{'holds' if c['holds'] else 'FAILS'}] {c['claim']}: {c['measured']}",
+        print(f"  [{claim_label(c)}] {c['claim']}: {c['measured']}",
               file=sys.stderr)
     if hasattr(module, "check"):
         module.check(arrays, cfg)
     from . import claims as registry
 
     # timing claims are recorded but never enforced (docs: claims.py, TIMED)
-    failed = [c for c in found if not c["holds"]
+    failed = [c for c in found if c["holds"] is False
               and not ("id" in c and registry.get(c["id"]).timed)]
     if failed and cfg.get("require_claims", False):
         raise ClaimFailed(f"{name} ({size}): required claims do not hold: "

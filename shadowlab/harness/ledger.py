@@ -39,7 +39,9 @@ resolutions are far below the papers' and whose verdicts are provisional. A run 
 config differs from today's config file is marked `stale`. Timings are CPU/XLA times on
 a shared machine; the papers' are GPU times, so only ratios and orderings are compared.
 Verdicts: `holds`, `fails`, `fails k of n` (measured on n scenes or variants),
-`not measured` (no committed run records it yet; the last column says why), and
+`untested` (the committed run could not test it, e.g. a claim about culled samples on
+frames where nothing was culled; the last column says why), `not measured` (no
+committed run records it yet; the last column says why), and
 `unit test` (checked on the paper's constructed example, not on a scene)."""
 
 
@@ -76,10 +78,15 @@ def _run_label(run: dict) -> str:
 
 
 def _verdict(found: list[dict]) -> str:
-    bad = sum(not c["holds"] for c in found)
+    """``holds``, ``fails``, ``fails k of n`` over the records that tested the claim;
+    ``untested`` where every record says it could not (``holds`` None)."""
+    tested = [c for c in found if c["holds"] is not None]
+    if not tested:
+        return "untested"
+    bad = sum(not c["holds"] for c in tested)
     if bad == 0:
         return "holds"
-    return "fails" if bad == len(found) else f"fails {bad} of {len(found)}"
+    return "fails" if bad == len(tested) else f"fails {bad} of {len(tested)}"
 
 
 def _measured_by(claim, runs) -> str:
@@ -143,13 +150,15 @@ def render(runs: dict[str, dict]) -> str:
     """The generated part of ``docs/claims.md`` for ``{experiment: json}``."""
     table = rows(runs)
     lines = ["# Paper claims ledger", "", _INTRO, ""]
-    lines += ["| paper | claims | holds | fails | not measured | unit test | full-size rows |",
-              "|---|---|---|---|---|---|---|"]
+    lines += ["| paper | claims | holds | fails | untested | not measured | unit test "
+              "| full-size rows |",
+              "|---|---|---|---|---|---|---|---|"]
     for key, paper in registry.PAPERS.items():
         mine = [r for r in table if r["paper"] == paper]
         count = lambda pred: sum(1 for r in mine if pred(r))          # noqa: E731
         lines.append(f"| {paper} | {len(mine)} | {count(lambda r: r['verdict'] == 'holds')} "
                      f"| {count(lambda r: r['verdict'].startswith('fails'))} "
+                     f"| {count(lambda r: r['verdict'] == 'untested')} "
                      f"| {count(lambda r: r['verdict'] == 'not measured')} "
                      f"| {count(lambda r: r['verdict'] == 'unit test')} "
                      f"| {count(lambda r: r['run'].startswith('full'))} |")
@@ -172,7 +181,7 @@ def render(runs: dict[str, dict]) -> str:
                   "|---|---|---|---|---|---|"]
         for n, c in extra:
             lines.append(f"| `{n}` | {_cell(c['claim'])} | {_cell(c['measured'])} "
-                         f"| {_run_label(runs[n])} | {'holds' if c['holds'] else 'fails'} "
+                         f"| {_run_label(runs[n])} | {_verdict([c])} "
                          f"| {_cell(c.get('note', ''))} |")
     else:
         lines.append("None.")
