@@ -108,7 +108,7 @@ def test_the_leaks_show_in_the_image():
 
 VARIANTS = [
     {"stencil": "zfail", "front_cap": "infinity"},
-    {"manifold": "closed", "adjacency": "scene", "max_opposite": 1},
+    {"manifold": "off", "adjacency": "scene", "max_opposite": 1},     # the general path
     {"cull_sides": "exact", "stencil": "zfail"},
 ]     # the default configuration is covered by tests/test_conformance.py
 
@@ -369,3 +369,24 @@ def test_caps_of_a_small_far_mesh_are_watertight_near_its_vertices(centre, preci
     assert (hits > 0).sum() > len(q) // 2                     # most rays do hit it
     assert np.all(count == 0), np.flatnonzero(count)[:10]
     assert np.all(hits % 2 == 0)
+
+
+def test_eye_inside_a_closed_objects_shadow_with_and_without_culling(precision):
+    """The camera under a sphere, in its shadow: ZPASS starts at the eye's count, which
+    counts the culled casters' volumes no more (1 for the sphere instead of 2); both
+    paths give the reference's lit mask."""
+    scene = sl.load_scene("sphere_grid", n=2, triangles_per_sphere=200)
+    light = sl.PointLight(position=(2.0, 11.25, -1.0))
+    eye = np.array([1.5, 0.25, -1.5])               # under sphere_1_0 (centre 1.5, 1.5, -1.5)
+    cam = sl.Camera(eye=eye, target=eye + [6.0, -0.1, 0.5], up=(0, 1, 0), fov_y_deg=70.0,
+                    near=0.01, far=100.0, resolution=(40, 40))
+    gbuf = sl.render_gbuffer(scene, cam)
+    truth = sl.reference_shadows(scene, gbuf, light)
+    assert 0 < int((~truth & gbuf.valid).sum()) and int((truth & gbuf.valid).sum()) > 0
+    runs = {m: sl.compute_shadows(scene, gbuf, light, method="silhouette", manifold=m,
+                                  precision=precision) for m in ("closed", "off")}
+    for m, res in runs.items():
+        assert int(((res.lit != truth) & gbuf.valid).sum()) == 0, m
+        assert res.counters["negative_stencil"] == 0, m
+    assert runs["closed"].counters["eye_in_volumes"] == 1
+    assert runs["off"].counters["eye_in_volumes"] == 2

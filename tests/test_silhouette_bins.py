@@ -103,6 +103,10 @@ def test_sample_grid_layout_against_a_plain_loop(dtype, behind):
     z = -q64[:, 2]
     good = z > 0
     assert np.array_equal(grid.cell == grid.cells, ~good)
+    for i in np.flatnonzero(good)[:200]:                  # the clamped cell of (u, v)
+        col, row = (min(max(int(np.floor((q64[i, k] / z[i] - grid.lo[k]) * grid.scale[k])),
+                            0), grid.shape[k] - 1) for k in (0, 1))
+        assert grid.cell[i] == row * grid.shape[0] + col
     for c in np.unique(grid.cell):
         members = np.flatnonzero(grid.cell == c)
         depth = np.where(good[members], z[members], np.inf)
@@ -118,6 +122,8 @@ def test_sample_grid_layout_against_a_plain_loop(dtype, behind):
             np.testing.assert_array_equal(grid.q[b][: len(inside)], q[inside])
             assert not grid.q[b][len(inside):].any()
     assert not grid.q[-1].any() and grid.q.dtype == dtype
+    empty = bins.sample_grid(q[:0], basis, (64, 48), tile=16, block=8)
+    assert empty.q.shape == (1, 8, 3) and len(empty.zmax) == len(empty.slot) == 0
 
 
 def _unbinned_small_grid(stencil, precision):
