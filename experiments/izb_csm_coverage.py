@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from shadowlab.harness import evaluate
+from shadowlab.harness.claims import outcome
 from shadowlab.harness.figures import scene_frames
 
 VARIANTS = (("circle", "slope"), ("corners", "slope"), ("circle", "corner"),
@@ -95,17 +96,15 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
     culled = int(arrays["culled"].sum())
     # with nothing culled (casters smaller than a texel) neither culling claim is tested:
     # "0 % vs 0 %" and "0 lit of 0 culled" cannot fail
-    nothing = {"holds": None,
-               "note": "untested: the CSM culled no sample on these frames (every caster "
-                       "smaller than a texel; izb_small_triangles: the culling rate against "
-                       "the caster size)"} if culled == 0 else {}
+    why = ("the CSM culled no sample on these frames (every caster smaller than a texel; "
+           "izb_small_triangles: the culling rate against the caster size)")
     return [
         {"id": "t18.tab1.cull_rate",
          "claim": "the corners test finds at least as many full texels as the circle test "
                   "(Table 1: +0.5 / +1.6 pp culling rate)",
          "measured": ", ".join(f"{s}: {100 * a:.1f}% vs {100 * b:.1f}% (+{g:.2f} pp)" for s, a, b, g
                                in zip(arrays["scenes"], rate[:, 1], rate[:, 0], gain)),
-         "holds": bool(np.all(rate[:, 1] >= rate[:, 0])), **nothing},
+         **outcome(np.all(rate[:, 1] >= rate[:, 0]), tested=culled > 0, why_untested=why)},
         {"claim": "the corners test costs about the same as the circle test (0.47 vs 0.48 ms)",
          "measured": ", ".join(f"{s}: {r:.2f}x" for s, r in zip(arrays["scenes"], ratio)),
          "holds": bool(np.all(ratio < 1.5))},
@@ -113,7 +112,8 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
          "claim": "the conservative shadow map never culls a lit sample",
          "measured": f"{int(arrays['false_shadows'].sum())} lit samples culled of "
                      f"{culled} culled, every scene and coverage test",
-         "holds": bool(np.all(arrays["false_shadows"] == 0)), **nothing},
+         **outcome(np.all(arrays["false_shadows"] == 0), tested=culled > 0,
+                   why_untested=why)},
     ]
 
 

@@ -26,6 +26,7 @@ import numpy as np
 import shadowlab as sl
 from shadowlab.core.frame import view_samples
 from shadowlab.harness import References, evaluate
+from shadowlab.harness.claims import outcome
 from shadowlab.methods.izb import light_area
 from shadowlab.methods.shadow_map import fit_camera
 from shadowlab.scene.procedural import default_view
@@ -112,8 +113,7 @@ def claims(arrays: dict, cfg: dict) -> list[dict]:
              "measured": f"{false} lit samples culled, both coverage tests, culling "
                          f"{100 * arrays['rate'].max(initial=0.0):.1f} % of the shadowed "
                          "samples at most",
-             "holds": bool(false == 0) if culls else None,
-             **({} if culls else {"note": "untested: the CSM culled no sample"})}]
+             **outcome(false == 0, tested=culls, why_untested="the CSM culled no sample")}]
 
 
 # %%

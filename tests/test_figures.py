@@ -104,17 +104,22 @@ def claims(arrays, cfg):
 '''
 
 
+def _toy_project(root, source: str = _TOY, required: bool = True) -> None:
+    """An experiment ``toy`` with ``source`` and a CI config under ``root``."""
+    (root / "experiments").mkdir(exist_ok=True)
+    (root / "configs" / "experiments").mkdir(parents=True, exist_ok=True)
+    (root / "experiments" / "toy.py").write_text(source)
+    (root / "configs" / "experiments" / "toy.ci.toml").write_text(
+        f"require_claims = {str(required).lower()}\n")
+
+
 @pytest.mark.parametrize("required", [False, True])
 def test_claims_are_recorded_and_enforced_only_where_required(tmp_path, required):
     import json
 
     from shadowlab.harness.figures import ClaimFailed
 
-    (tmp_path / "experiments").mkdir()
-    (tmp_path / "configs" / "experiments").mkdir(parents=True)
-    (tmp_path / "experiments" / "toy.py").write_text(_TOY)
-    (tmp_path / "configs" / "experiments" / "toy.ci.toml").write_text(
-        f"require_claims = {str(required).lower()}\n")
+    _toy_project(tmp_path, required=required)
     out = tmp_path / "figures"
     if required:
         with pytest.raises(ClaimFailed, match="x sums to 4"):
@@ -133,10 +138,7 @@ def test_an_untested_claim_is_recorded_and_not_enforced(tmp_path):
     toy = _TOY.replace('"holds": bool(arrays["x"].sum() == 4)}]',
                        '"holds": None, "note": "x is empty here"}]')
     assert toy != _TOY
-    (tmp_path / "experiments").mkdir()
-    (tmp_path / "configs" / "experiments").mkdir(parents=True)
-    (tmp_path / "experiments" / "toy.py").write_text(toy)
-    (tmp_path / "configs" / "experiments" / "toy.ci.toml").write_text("require_claims = true\n")
+    _toy_project(tmp_path, toy)
     run_experiment(tmp_path, "toy", "ci", out=tmp_path / "figures")       # no ClaimFailed
     meta = json.loads((tmp_path / "figures" / "toy.json").read_text())
     assert meta["claims"][1]["holds"] is None
@@ -153,10 +155,7 @@ def test_a_failing_timing_claim_is_recorded_but_never_enforced(tmp_path):
     assert get("s14.fig8.explicit_faster").timed and not get("s14.fig6.gain2x").timed
     toy = _TOY.replace('''{"claim": "x sums to 4",''', '''{"id": "s14.fig8.explicit_faster",
              "claim": "x sums to 4",''')
-    (tmp_path / "experiments").mkdir()
-    (tmp_path / "configs" / "experiments").mkdir(parents=True)
-    (tmp_path / "experiments" / "toy.py").write_text(toy)
-    (tmp_path / "configs" / "experiments" / "toy.ci.toml").write_text("require_claims = true\n")
+    _toy_project(tmp_path, toy)
     run_experiment(tmp_path, "toy", "ci", out=tmp_path / "figures")       # no ClaimFailed
     meta = json.loads((tmp_path / "figures" / "toy.json").read_text())
     assert meta["claims"][1]["holds"] is False
@@ -173,10 +172,7 @@ def test_claims_only_recomputes_claims_from_the_stored_arrays(tmp_path, capsys):
 
     from shadowlab.cli import main
 
-    (tmp_path / "experiments").mkdir()
-    (tmp_path / "configs" / "experiments").mkdir(parents=True)
-    (tmp_path / "experiments" / "toy.py").write_text(_TOY)
-    (tmp_path / "configs" / "experiments" / "toy.ci.toml").write_text("require_claims = false\n")
+    _toy_project(tmp_path, required=False)
     run_experiment(tmp_path, "toy", "ci", out=tmp_path / "figures")
     before = json.loads((tmp_path / "figures" / "toy.json").read_text())
     (tmp_path / "experiments" / "toy.py").write_text(

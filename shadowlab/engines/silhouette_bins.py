@@ -219,9 +219,11 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     qb.view(row)[:, 0][slot] = q.view(row)[:, 0]
     # a block's samples are consecutive in ``order``: its depth range by reduceat
     first_of_block = np.flatnonzero(rank % block == 0)
-    zmax = np.maximum.reduceat(depth[order], first_of_block) if len(order) else depth[:0]
-    zmin = (np.minimum.reduceat(np.where(good, zq, -np.inf)[order], first_of_block)
-            if len(order) else depth[:0])
+    # a q behind the eye counts as +inf for the farthest depth and -inf for the nearest
+    for_max = depth[order]
+    for_min = for_max if every else np.where(good, zq, -np.inf)[order]
+    zmax = np.maximum.reduceat(for_max, first_of_block) if len(order) else for_max
+    zmin = np.minimum.reduceat(for_min, first_of_block) if len(order) else for_max
     return dataclasses.replace(grid, cell=cell, zmax=zmax, zmin=zmin,
                                block_cell=np.repeat(cells, nb_cell), slot=slot,
                                q=qb.reshape(n_blocks + 1, block, 3))

@@ -408,3 +408,12 @@ def measured(claim_id: str, measured_text: str, holds: bool, *, label: str = "",
     if note:
         out["note"] = str(note)
     return out
+
+
+def outcome(holds: bool, *, tested: bool, why_untested: str) -> dict:
+    """The ``holds`` part of a claim dict: ``{"holds": bool}``, or, where the run could
+    not test the claim (``tested`` False: e.g. nothing was culled, so "0 of 0" cannot
+    fail), ``{"holds": None, "note": "untested: <why_untested>"}``."""
+    if tested:
+        return {"holds": bool(holds)}
+    return {"holds": None, "note": f"untested: {why_untested}"}
