@@ -40,7 +40,7 @@ Vectorized JAX: active tiles, sorted by list length, run in batches of 32 (one c
 shape), vectorized over (tiles x 256 pixels). With ``defer`` (default) a batch first runs
 only the per-pixel quick reject over its lists, recording the passing entries as bits,
 then rasterizes just those (per round of 256 entries; with ``compact`` each step runs only
-on the lanes with pairs left, in waves of halving static size); a pixel whose grid is
+on the lanes with pairs left, in blocks of 512 lanes); a pixel whose grid is
 empty stops. Option ``record`` picks the record pass's test: the quick reject, the
 triangle's bounding sphere against the pixel's light cone (the flush then runs the quick
 reject), or both. See docs/soft_tiled.md.
@@ -81,7 +81,7 @@ from ..core.result import ShadowResult
 
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
 DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)
-MIN_FLUSH_LANES = 512   # compact flush: the smallest wave (lanes); waves halve
+FLUSH_BLOCK = 512       # compact flush: lanes per block (each runs until its own longest)
 #: record="sphere": the kernel widens each bounding sphere by this fraction of the
 #: centre's light-frame offset (|x| + |y| + |z|), which covers the float32 rounding of the
 #: offset, its rotation into the light frame and the cone's sine and cosine (each a few
@@ -483,12 +483,13 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
 
             Every lane pops one recorded pair per step. Without ``compact`` all lanes of
             the batch run until the lane with the most pairs is done. With it, the lanes
-            are sorted by their number of pairs (descending) and run in waves on static,
-            prefixes ``caps`` of that order, halving: wave i runs the first caps[i]
-            lanes until every lane past caps[i + 1] is done (the (caps[i + 1] + 1)-th
-            largest count), the last wave until the largest. No lane stops before its
-            pairs are done, and a lane's steps do not depend on the others (the grid is
-            an AND of its pairs' keep words), so the words are those of the full run.
+            are sorted by their number of pairs (descending) and run in blocks of
+            ``FLUSH_BLOCK`` consecutive lanes of that order, one block after the other,
+            each until its own first (largest) lane is done; the blocks after the first
+            empty one are skipped. The kernel therefore holds one copy of the
+            rasterizer step, whatever the batch size. No lane stops before its pairs are
+            done, and a lane's steps do not depend on the others (the grid is an AND of
+            its pairs' keep words), so the words are those of the full run.
             With ``record="sphere"`` each popped pair first runs the exact quick reject.
             Returns the words, the rasterized and near-clamp counts of the flush [G, 256]
             (zero unless ``record="sphere"``) and the lanes executed (steps x lanes,
@@ -515,10 +516,11 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 order = jnp.argsort(-todo, stable=True)
                 data, state = jax.tree_util.tree_map(lambda a: a[..., order], (data, state))
                 ranked = todo[order]
-                caps = [c for c in (n >> i for i in range(16)) if c >= MIN_FLUSH_LANES]
-                ends = [ranked[c] for c in caps[1:]] + [ranked[0]]
+                block = min(FLUSH_BLOCK, n)
             else:
-                caps, ends = [n], [jnp.max(todo)]
+                ranked = jnp.broadcast_to(jnp.max(todo), (n,))
+                block = n
+            assert n % block == 0, (n, block)
 
             def step_on(lanes):
                 def step(_, carry):
@@ -542,16 +544,31 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                             *counts)
                 return step
 
-            out = state[0]
-            out_counts = state[4:]
-            start, executed = jnp.int32(0), jnp.int32(0)
-            for cap, end in zip(caps, ends):
-                lanes, state = jax.tree_util.tree_map(lambda a: a[..., :cap], (data, state))
-                state = jax.lax.fori_loop(start, end, step_on(lanes), state)
-                out = [o.at[:cap].set(wd) for o, wd in zip(out, state[0])]
-                out_counts = [o.at[:cap].set(c) for o, c in zip(out_counts, state[4:])]
-                executed = executed + cap * jnp.maximum(end - start, 0)
-                start = jnp.maximum(start, end)
+            n_blocks = n // block
+
+            def run_block(carry):
+                b, state, executed = carry
+                lo = b * block
+
+                def part(a):
+                    return jax.lax.dynamic_slice_in_dim(a, lo, block, axis=a.ndim - 1)
+
+                # ranked is descending: the block's first lane has the most pairs
+                steps = ranked[lo]
+                done = jax.lax.fori_loop(0, steps, step_on(jax.tree_util.tree_map(part, data)),
+                                         jax.tree_util.tree_map(part, state))
+                state = jax.tree_util.tree_map(
+                    lambda a, d: jax.lax.dynamic_update_slice_in_dim(a, d, lo, a.ndim - 1),
+                    state, done)
+                return b + 1, state, executed + block * steps
+
+            def more_blocks(carry):
+                b = carry[0]
+                return (b < n_blocks) & (ranked[jnp.minimum(b, n_blocks - 1) * block] > 0)
+
+            _, state, executed = jax.lax.while_loop(more_blocks, run_block,
+                                                    (jnp.int32(0), state, jnp.int32(0)))
+            out, out_counts = list(state[0]), list(state[4:])
             if compact:
                 out, out_counts = [[jnp.zeros_like(o).at[order].set(o) for o in group]
                                    for group in (out, out_counts)]
@@ -961,7 +978,8 @@ SOFT_DECLARATION = {
                                     allowed=("exact", "sphere", "both")),
                    "compact": Option(True, "defer: each flush step runs only on the lanes "
                                      "with recorded pairs left (lanes sorted by their pair "
-                                     "count, waves of shrinking static size); False = every "
+                                     "count, blocks of 512 that each run until their own "
+                                     "longest lane is done); False = every "
                                      "lane of the batch until the longest is done (same "
                                      "visibility and counters except raster_lanes)",
                                      allowed=(True, False)),
