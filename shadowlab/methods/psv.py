@@ -446,6 +446,16 @@ STACK_IN_PLACE = True
 #: another size (the 256-1024 tail had 8 more sizes per query configuration: 32 % more
 #: compiles for PSV, 52 % for D-Hybrid on fuzzy at 64x64; the same chunks and results).
 MIN_LANES = 1024
+#: Up to this many lanes the buckets are powers of two; above it, 4 sizes per octave.
+#: A small bucket's chunk costs little next to compiling its kernels, so padding it by
+#: up to 2x costs less than 3 more sizes per octave (docs/psv.md, "Lane buckets").
+COARSE_LANES = 8192
+
+
+def lane_bucket(n: int) -> int:
+    """The compiled lane count of a query or compaction holding ``n`` lanes."""
+    n = max(int(n), 1)
+    return bucket(n, minimum=MIN_LANES, steps=1 if n <= COARSE_LANES else 4)
 
 
 BARRIER = True
@@ -764,7 +774,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
     out = {name: np.zeros(s_count, np.int32) for name in ("stack_max", "overflows", "switches")}
     n_chunks = 0
     with timer.stage("query_setup"):
-        b = bucket(max(s_count, 1), minimum=MIN_LANES, steps=4)
+        b = lane_bucket(s_count)
         if query != "stackless":        # the stack is addressed at int32 offsets
             check_int32(stack_buffer_size(b, k), f"PSV stack entries ({k + 1} per lane)",
                         "use a smaller stack_size or render fewer samples")
@@ -829,7 +839,7 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
                 # The full hybrid step while some lane is stalled or in stackless mode.
                 use_fast = not np.any(((word < 0) | ((word & SL) != 0)) & ~done)
             keep = np.flatnonzero(~done)
-            nb = bucket(len(keep), minimum=MIN_LANES, steps=4)
+            nb = lane_bucket(len(keep))
             steps = lengths.send(bool(len(keep)) and nb < b)
             if len(keep) and nb >= b:
                 continue
