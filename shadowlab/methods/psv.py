@@ -748,8 +748,9 @@ def run_query(tree: tt.TopTree, points: np.ndarray, scale: np.ndarray, key: np.n
 
     Lanes run a chunk of node visits per kernel call (lengths from
     :func:`chunk_lengths`: ``chunk`` each with ``schedule="fixed"``); between calls the
-    unfinished lanes are compacted into the smallest of 4 sizes per octave
-    (``core.capacity.bucket``, at least ``MIN_LANES``) that holds them, when that is
+    unfinished lanes are compacted into the smallest lane bucket (:func:`lane_bucket`:
+    powers of two from ``MIN_LANES`` to ``COARSE_LANES``, 4 sizes per octave above)
+    that holds them, when that is
     smaller than the current size. The schedule changes only the time: a finished lane
     neither visits nor changes state.
     """
