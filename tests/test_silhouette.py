@@ -225,6 +225,7 @@ BIN_CASES = [
     ("sphere_grid", {"stencil": "zfail"}),                          # front and back caps
     ("soup", {"stencil": "zfail", "front_cap": "infinity"}),        # caps at infinity
     ("sheet", {"stencil": "zfail", "degenerate": "paper"}),         # eye inside the scene
+    ("sheet", {}),              # ZPASS from inside the scene (its fins clipped at depth)
     # eye and light inside: sides and back caps reach behind the eye plane (cut by
     # their cones to the samples' box)
     ("atrium", {"stencil": "zfail"}),
@@ -246,11 +247,15 @@ def test_screen_bins_equal_the_full_passes_per_sample(name, opts, precision):
                                  bins=b, chunk=4, **opts) for b in ("off", "screen")}
     off, on = res["off"].counters, res["screen"].counters
     for key in off:
-        if key not in ("side_tests", "cap_tests"):
+        if key not in ("side_tests", "cap_tests", "clipped_sides"):
             assert np.array_equal(np.asarray(off[key]), np.asarray(on[key])), key
     assert np.array_equal(res["off"].lit, res["screen"].lit)
     assert on["side_tests"] < off["side_tests"]
-    assert on["cap_tests"] < off["cap_tests"]
+    if name == "sheet" and "stencil" not in opts:
+        # ZPASS from inside the scene: the few caps before q reach every cell
+        assert on["cap_tests"] <= off["cap_tests"]
+    else:
+        assert on["cap_tests"] < off["cap_tests"]
     if opts.get("stencil") == "zfail":
         assert np.count_nonzero(on["cap_crossings_per_pixel"]) > 0     # caps were crossed
 

@@ -245,3 +245,79 @@ def test_lists_int32_offsets_cannot_address_are_refused(monkeypatch):
     again = sl.compute_shadows(scene, gbuf, light, method="silhouette", bins="off",
                                stencil="zpass", precision="float32")
     assert np.array_equal(again.lit, full.lit)
+
+
+def test_range_max_equals_a_plain_loop():
+    """The sparse table's rectangle maxima equal a loop over the rectangle's cells."""
+    rng = np.random.default_rng(3)
+    for gy, gx in ((1, 1), (5, 9), (16, 16), (33, 7)):
+        values = rng.normal(size=(gy, gx))
+        values[rng.random((gy, gx)) < 0.2] = -np.inf
+        y0, y1 = np.sort(rng.integers(0, gy, (2, 200)), axis=0)
+        x0, x1 = np.sort(rng.integers(0, gx, (2, 200)), axis=0)
+        got = bins._RangeMax(values).query(y0, y1, x0, x1)
+        want = [values[a:b + 1, c:d + 1].max() for a, b, c, d in zip(y0, y1, x0, x1)]
+        np.testing.assert_array_equal(got, want)
+
+
+class _FlatGrid:
+    """A sample grid whose cells all reach the same depth (what clip_fins reads)."""
+
+    def __init__(self, depth, box=2.0):
+        self.shape, self.cells = (8, 8), 64
+        self.lo, self.scale = (-box, -box), (8 / (2 * box), 8 / (2 * box))
+        self.block_cell = np.arange(64)
+        self.zmax = np.full(64, depth)
+        self.q = np.zeros((65, 1, 3))
+        self.q[:64, 0, 2] = depth
+
+    def index(self, x, axis):
+        return bins.SampleGrid.index(self, x, axis)
+
+
+@pytest.mark.parametrize("directional", [False, True])
+def test_clipped_fins_hold_every_point_of_the_fin_before_the_limit(directional):
+    """Every point of a fin no deeper than the limit lies in the cone of the clipped
+    generators (their facet half-spaces), and the clipped generators lie on the fin at
+    most at the limit's depth; a fin whose directions do not both point deeper is kept."""
+    rng = np.random.default_rng(7)
+    basis = (np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]))  # z = -w
+    n = 400
+    a = np.stack([rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), -rng.uniform(2, 6, n)], 1)
+    b = a + rng.normal(scale=0.5, size=(n, 3))
+    light = (np.array([0.3, 1.0, 0.4, 0.0]) if directional
+             else np.array([*rng.normal(size=3) * 3 + [0, 4, -4], 1.0]))
+    shape = bins.side_shapes(a, b, light, np.finfo(np.float32).eps, 1.0, 10.0)[0]
+    depth = 6.0
+    (pts, _), cut = bins.clip_fins(shape, _FlatGrid(depth), basis, np.finfo(np.float32).eps)
+    z = -pts[..., 2]
+    dives = (-shape[0][:, 2, 2] > 0) & (-shape[0][:, 3, 2] > 0)
+    assert cut.any() and not (cut & ~dives).any()
+    np.testing.assert_array_equal(pts[~cut], shape[0][~cut])
+    limit = depth * (1 + bins.DEPTH_MARGIN)
+    assert np.all(z[cut] <= limit * (1 + 1e-12))
+    normals, valid = bins.cone_facets(pts[cut])
+    da, db = shape[0][cut, 2], shape[0][cut, 3]
+    hits = 0
+    for s_, t_ in rng.uniform(0, 1, (60, 2)):
+        t_ = 30 * t_ ** 3
+        x = (1 - s_) * (a[cut] + t_ * da) + s_ * (b[cut] + t_ * db)
+        before = -x[:, 2] <= limit
+        side = np.einsum("kpd,kd->kp", normals, x / np.linalg.norm(x, axis=1)[:, None])
+        inside = np.all(~valid | (side >= -1e-9), axis=1)
+        assert inside[before].all()
+        hits += int(before.sum())
+    assert hits > 1000
+
+
+def test_clipped_fins_test_fewer_sides_for_the_same_counts(monkeypatch, precision):
+    """ZPASS with the fins clipped at their samples' depth gives the unbinned passes'
+    per-pixel counts and lit mask with fewer side tests than unclipped bins."""
+    scene, gbuf, light, full = _unbinned_small_grid("zpass", precision)
+    clipped = sl.compute_shadows(scene, gbuf, light, method="silhouette", precision=precision)
+    monkeypatch.setattr(bins, "FIN_CLIP_ROUNDS", None)
+    whole = sl.compute_shadows(scene, gbuf, light, method="silhouette", precision=precision)
+    _assert_same_counts(full, clipped)
+    _assert_same_counts(full, whole)
+    assert clipped.counters["clipped_sides"] > 0 == whole.counters["clipped_sides"]
+    assert clipped.counters["side_tests"] < whole.counters["side_tests"]

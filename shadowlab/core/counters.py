@@ -74,6 +74,9 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("side_quads", "int", "side quads extruded: the sum of |m| over edge records"),
     Counter("culled_sides", "int", "silhouette edge records whose side the visibility test "
             "culled (not drawn)"),
+    Counter("clipped_sides", "int", "silhouette sides whose screen bins were taken from the "
+            "part of the fin no deeper than the samples that can cross it (zpass with screen "
+            "bins; performance only)"),
     Counter("cap_triangles", "int", "cap triangles drawn (front and back caps; 0 for zpass)"),
     Counter("side_tests", "int", "(sample, side) pairs the software stencil evaluates (every "
             "drawn side per sample, or the side list of the sample's screen cell)"),

@@ -293,6 +293,21 @@ def cap_shapes(tri: np.ndarray, light: np.ndarray | None) -> list:
     return out
 
 
+def _side_planes(a, b, da):
+    """The side planes of R sides (eye-relative a, b [R, 3], D_A [R, 3]): the normal
+    r = (L' - L_w A') x (B' - A') [R, 3] as the kernels form it, the eye's distance from
+    the plane [R] (0 where r = 0) and 1 / sin of the angle between the two factors [R]
+    (|x| |y| / |x x y|, inf where r = 0: r's relative rounding is about that times eps)."""
+    x, y = -da, b - a
+    r = np.cross(x, y)
+    r_len = _norm(r)
+    some = r_len > 0
+    safe = np.where(some, r_len, 1.0)
+    eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", a, r)) / safe, 0.0)
+    inv_sin = np.where(some, _norm(x) * _norm(y) / safe, np.inf)
+    return r, eye_dist, inv_sin
+
+
 def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
                 q_min: float, q_max: float) -> list:
     """Screen shape of R side quads (eye-relative edges a, b [R, 3], light [4]):
@@ -310,15 +325,160 @@ def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
     lv = np.broadcast_to(np.asarray(light[:3], np.float64), a.shape)
     lw = float(light[3])
     da, db = lw * a - lv, lw * b - lv
-    r = np.cross(-da, b - a)
     r_ratio = _pair_ratio(-da, b - a)
-    slack = PAD_FACTOR * eps * (1 + r_ratio)
-    eye_near = np.abs(np.einsum("ij,ij->i", a, r)) <= slack * (_norm(a) + q_max) * _norm(r)
+    _, eye_dist, _ = _side_planes(a, b, da)
+    eye_near = eye_dist <= PAD_FACTOR * eps * (1 + r_ratio) * (_norm(a) + q_max)
     pi2 = 8 * (1 + _norm(a) / max(q_min, np.finfo(np.float64).tiny)) * (1 + r_ratio)
     ratio = np.maximum.reduce([
         _pair_ratio(lv, a), _pair_ratio(lv, b), _pair_ratio(a, b), r_ratio,
         np.where(eye_near, pi2, 0.0)])
     return [(np.stack([a, b, da, db], axis=1), ratio)]
+
+
+#: rounds of :func:`clip_fins` (each lowers a fin's depth limit to the farthest q of the
+#: cells its clipped box meets); None: ZPASS fins are not clipped
+FIN_CLIP_ROUNDS = 2
+
+
+def clip_fins(shape: tuple, grid: "SampleGrid", basis, eps: float) -> tuple[tuple, np.ndarray]:
+    """ZPASS side fins cut at the depth of the samples that can cross them.
+
+    ZPASS counts a side's crossings between the eye and q, which lie no deeper (camera
+    depth z) than q. A fin conv(A, B) + cone(D_A, D_B) (:func:`side_shapes`) is planar
+    and convex; where A and B lie in front of the eye and both D_A and D_B point deeper,
+    its part with z <= Z is the quad conv(A, B, A + t_A D_A, B + t_B D_B) with both new
+    points at depth Z when A and B are no deeper than Z, and the triangle conv(A, C,
+    A + t_A D_A) when only A is (C: the point of AB at depth Z; it then stands for B and
+    D_B both). So the direction generators become points and the fin's screen region
+    shrinks from the directions' vanishing points to the depth Z.
+
+    Z starts at the farthest q of the grid's cells widened by ``DEPTH_MARGIN``; each of
+    ``FIN_CLIP_ROUNDS`` rounds lowers it to the farthest q of the cells that the padded
+    box of the fin cut at the current Z meets, widened likewise. By induction a sample
+    whose segment E -> q crosses the fin lies in one of those cells (its crossing has
+    z <= z_q <= Z), so the cut keeps every crossing.
+
+    Rounding: the new far facet stands for the edge test pi2 (crossing before or after
+    q); a q whose view ray meets the fin only beyond Z >= (1 + DEPTH_MARGIN) z_q lies at
+    least ``DEPTH_MARGIN / (1 + DEPTH_MARGIN)`` of the eye's distance from the side
+    plane. A fin is cut only where that exceeds pi2's rounding distance, about
+    eps |q' - A'| (1 + 1 / sin) with the angle between r's factors
+    (:func:`_side_planes`), times ``PAD_FACTOR``, where |q'| is bounded by the largest of
+    the samples in the cells of the whole fin's padded box (the only ones a cut can drop);
+    the other predicates keep their padded facets. Samples whose q is not in front of the eye (the 'all' cell) test every side
+    anyway.
+
+    Args:
+        shape: (points [R, 4, 3] float64 (A, B, D_A, D_B), ratio [R]) of
+            :func:`side_shapes`.
+        grid: the samples' grid; basis: the camera basis; eps: the working precision's
+            machine epsilon.
+    Returns:
+        ((points [R, 4, 3], ratio [R]) with the cut fins' D_A, D_B replaced by points,
+        bool [R] which fins were cut).
+    """
+    pts, ratio = shape
+    cut = np.zeros(len(pts), bool)
+    real = grid.block_cell < grid.cells
+    rounds = FIN_CLIP_ROUNDS
+    if rounds is None or not len(pts) or not real.any() or not np.isfinite(grid.zmax[real]).all():
+        return shape, cut
+    a, b, da, db = (pts[:, k] for k in range(4))
+    forward = -np.asarray(basis[2], np.float64)
+    za, zb, dza, dzb = (pts[:, k] @ forward for k in range(4))
+    able = (za > 0) & (zb > 0) & (dza > 0) & (dzb > 0)     # every generator: a bounded box
+    far_table = _RangeMax(_per_cell(grid, grid.zmax[real], real))
+    # the samples a cut can drop lie in the cells of the whole fin's box: their largest
+    # |q'| bounds |q' - A'| (a far outlier q elsewhere on screen does not count)
+    q64 = grid.q[:-1].astype(np.float64)
+    q_len = np.sqrt(np.einsum("nbk,nbk->nb", q64, q64)).max(axis=1)
+    q_near = _RangeMax(_per_cell(grid, q_len[real], real)).query(
+        *_cell_box(pts[able], ratio[able], eps, basis, grid))
+    _, eye_dist, inv_sin = _side_planes(a[able], b[able], da[able])
+    # pi2 = (q' - A') . r as a distance rounds by about eps |q' - A'| (1 + 1 / sin) (x and
+    # y = B' - A' are single roundings of exact inputs, so r's error is about
+    # eps |x| |y|); PAD_FACTOR is the margin on that estimate, as for the pads
+    rounding = PAD_FACTOR * eps * (1 + inv_sin) * (_norm(a[able]) + q_near)
+    able[able] = eye_dist > (1 + 1 / DEPTH_MARGIN) * rounding
+    limit = np.full(len(pts), float(grid.zmax[real].max()) * (1 + DEPTH_MARGIN))
+    out = pts
+    for step in range(rounds + 1):
+        cut = able & (np.minimum(za, zb) <= limit)
+        out = pts.copy()
+        for end, d, z, dz, z_other in ((0, 2, za, dza, zb), (1, 3, zb, dzb, za)):
+            inside = np.flatnonzero(cut & (z <= limit))       # X and X + t D_X at depth Z
+            t = (limit[inside] - z[inside]) / dz[inside]
+            out[inside, d] = pts[inside, end] + t[:, None] * pts[inside, d]
+            beyond = np.flatnonzero(cut & (z > limit))        # both: the point of AB at Z
+            other = pts[beyond, 1 - end]
+            w = (limit[beyond] - z_other[beyond]) / (z[beyond] - z_other[beyond])
+            point = other + w[:, None] * (pts[beyond, end] - other)
+            out[beyond, end] = out[beyond, d] = point
+        if step == rounds or not cut.any():
+            break
+        far = far_table.query(*_cell_box(out[cut], ratio[cut], eps, basis, grid))
+        # a fin whose nearer end lies beyond the new limit (or whose cells hold no
+        # sample: far = -inf) is crossed by no sample there; the depth cut drops it, and
+        # it keeps the current limit
+        new = far * (1 + DEPTH_MARGIN)
+        keep = np.minimum(za[cut], zb[cut]) <= new
+        limit[np.flatnonzero(cut)[keep]] = new[keep]
+    return (out, ratio), cut
+
+
+def _per_cell(grid: "SampleGrid", values: np.ndarray, real: np.ndarray) -> np.ndarray:
+    """[gy, gx]: the largest of the values [Nb'] of the blocks ``real`` (bool [Nb]) in
+    each cell (-inf in a cell without samples)."""
+    out = np.full(grid.cells, -np.inf)
+    np.maximum.at(out, grid.block_cell[real], values)
+    return out.reshape(grid.shape[1], grid.shape[0])
+
+
+def _cell_box(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid"):
+    """(row0, row1, column0, column1) int64 [K] each: the clamped cell range of the
+    padded screen boxes of K bounded primitives (generators pts [K, P, 3], all in front of
+    the eye; pad as in :func:`_boxes` with ``PAD_FACTOR``)."""
+    u, v, _ = _project_columns(pts, basis)
+    pad = _pad(ratio, np.max(u * u + v * v, axis=1), eps, PAD_FACTOR)
+    return (grid.index(v.min(1) - pad, 1), grid.index(v.max(1) + pad, 1),
+            grid.index(u.min(1) - pad, 0), grid.index(u.max(1) + pad, 0))
+
+
+class _RangeMax:
+    """Maxima of rectangles of a 2D array [gy, gx] (a sparse table: O(1) per query)."""
+
+    def __init__(self, values: np.ndarray):
+        self.levels = {(0, 0): values}
+        gy, gx = values.shape
+        for i in range(gy.bit_length()):
+            if i:
+                below, h = self.levels[i - 1, 0], 1 << (i - 1)
+                self.levels[i, 0] = np.maximum(below[:-h], below[h:])
+            for j in range(1, gx.bit_length()):
+                left, h = self.levels[i, j - 1], 1 << (j - 1)
+                self.levels[i, j] = np.maximum(left[:, :-h], left[:, h:])
+
+    def query(self, y0, y1, x0, x1) -> np.ndarray:
+        """float [K]: the maximum over rows y0..y1 and columns x0..x1 (int [K], in range)."""
+        ky = np.log2(y1 - y0 + 1).astype(np.int64)
+        kx = np.log2(x1 - x0 + 1).astype(np.int64)
+        out = np.full(len(y0), -np.inf)
+        for i in np.unique(ky):
+            for j in np.unique(kx[ky == i]):
+                s = np.flatnonzero((ky == i) & (kx == j))
+                t = self.levels[i, j]
+                ya, yb = y0[s], y1[s] - (1 << i) + 1
+                xa, xb = x0[s], x1[s] - (1 << j) + 1
+                out[s] = np.maximum(np.maximum(t[ya, xa], t[ya, xb]),
+                                    np.maximum(t[yb, xa], t[yb, xb]))
+        return out
+
+
+def _pad(ratio: np.ndarray, r2: np.ndarray, eps: float, factor: float) -> np.ndarray:
+    """[K]: the screen pad of K primitives whose predicates have the rounding ratios
+    ``ratio`` (inf: none usable) and whose region reaches r2 = u^2 + v^2 (module
+    docstring: ``factor`` eps ratio, stretched by the projection, 2 (1 + r^2))."""
+    return (factor * eps * np.where(np.isfinite(ratio), ratio, 0.0) + FACET_SLACK) * (2.0 + 2.0 * r2)
 
 
 #: a generator pair spans a facet plane only if |x x y| >= this times |x| |y|
@@ -425,7 +585,7 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
     r2_box = float(np.max(corners[:, 0] ** 2 + corners[:, 1] ** 2))
     r2 = np.where(bounded, np.max(np.where(bounded[:, None], u * u + v * v, 0.0), axis=1),
                   r2_box)
-    pad = (factor * eps * np.where(ok, ratio, 0.0) + FACET_SLACK) * (2.0 + 2.0 * r2)
+    pad = _pad(ratio, r2, eps, factor)
     with np.errstate(invalid="ignore"):
         hull = np.stack([u.min(1), u.max(1), v.min(1), v.max(1)], axis=1)
     sample_box = np.array([corners[:, 0].min(), corners[:, 0].max(),

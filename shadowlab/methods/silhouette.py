@@ -38,7 +38,7 @@ from ..core.frame import cap_bias, precision_mode, view_samples
 from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
-from ..engines.silhouette_bins import (batch_arrays, cap_shapes, farthest_depth,
+from ..engines.silhouette_bins import (batch_arrays, cap_shapes, clip_fins, farthest_depth,
                                       nearest_depth, sample_grid, screen_bins, side_shapes,
                                       unbatch)
 from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
@@ -248,6 +248,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         q_host = np.asarray(q_rel)[: samples.count]
         basis = cam.basis()
         eps_w = float(np.finfo(dtype).eps)
+        clipped_sides = 0
         if binned:
             with timer.stage("stencil_bins"):
                 grid = sample_grid(q_host, basis, samples.shape)
@@ -258,7 +259,11 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                 q_len = np.sqrt(np.einsum("ij,ij->i", q_host, q_host))
                 shapes = side_shapes(*ends, light_rel, eps_w, q_len.min(initial=np.inf),
                                      q_len.max(initial=0.0))
-                near = None if zfail else nearest_depth(shapes[0][0], basis, directions=2)
+                near = None
+                if not zfail:       # crossings before q only: cut by depth, fins clipped
+                    near = nearest_depth(shapes[0][0], basis, directions=2)
+                    shape, clipped = clip_fins(shapes[0], grid, basis, eps_w)
+                    shapes, clipped_sides = [shape], int(clipped.sum())
                 sb = screen_bins(grid, shapes, eps_w, basis, near)
                 args = batch_arrays(grid, sb)
             sten, upd = timer.run("stencil", binned_side_kernel(zfail), q_blocks,
@@ -340,7 +345,8 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         "open_edges": rep.open_edges,
         "nonmanifold_edges": rep.nonmanifold_edges,
         "silhouette_edges": int(len(sil)), "side_quads": int(np.abs(m_rec).sum()),
-        "culled_sides": culled, "cap_triangles": int(cap_triangles),
+        "culled_sides": culled, "clipped_sides": clipped_sides,
+        "cap_triangles": int(cap_triangles),
         "stencil_updates": int(upd.sum()),
         "stencil_updates_per_pixel": samples.scatter(upd, fill=0),
         "side_tests": int(side_tests), "cap_tests": int(cap_tests),
@@ -372,7 +378,7 @@ register(
     paper="Pečiva 2013", kind="exact", presets={"paper": PAPER_PRESET},
     counters=("samples", "casters", "culled_triangles", "front_face_culled", "edges",
               "open_edges", "nonmanifold_edges", "silhouette_edges", "side_quads",
-              "culled_sides",
+              "culled_sides", "clipped_sides",
               "cap_triangles", "stencil_updates", "stencil_updates_per_pixel",
               "side_tests", "cap_tests", "cap_crossings_per_pixel", "negative_stencil",
               "eye_in_volumes", "shadowed", "lit"),
