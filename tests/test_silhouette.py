@@ -318,7 +318,8 @@ def _closed_mesh_crossings(vertices, faces, q, dtype):
 def _crossings_in(v, faces, q):
     import jax.numpy as jnp
 
-    from shadowlab.engines.silhouette_stencil import cap_kernel, edge_table, vertex_terms
+    from shadowlab.engines.silhouette_stencil import (cap_kernel, cap_table, edge_table,
+                                                      vertex_terms)
     from shadowlab.methods.silhouette import triangle_signs
 
     dtype = v.dtype
@@ -334,16 +335,15 @@ def _crossings_in(v, faces, q):
     vt = vertex_terms(jnp.asarray(v), jnp.asarray(light))
     table = np.asarray(edge_table(jnp.asarray(v[uniq[:, 0]]), jnp.asarray(v[uniq[:, 1]]),
                                   vt[uniq[:, 0]], vt[uniq[:, 1]], jnp.asarray(light)))
-    rows = table[inv.reshape(3, -1).T]                                 # [T, 3, 16]
     _, terms = triangle_signs(*(jnp.asarray(v[srt[:, k]]) for k in range(3)),
                               jnp.asarray(light))
+    rows = cap_table(table, inv.reshape(3, -1).T, np.asarray(terms), "eye_ray", False)
     chunk = 8
     t = len(faces)
     cap = -(-t // chunk) * chunk
     pad = lambda x: np.concatenate([x, np.zeros((cap - t, *x.shape[1:]), x.dtype)])  # noqa: E731
     run = cap_kernel(chunk, "eye_ray", False)
-    count, hits = run(jnp.asarray(q), jnp.asarray(pad(rows)),
-                      jnp.asarray(pad(np.asarray(terms))), jnp.asarray(pad(parity)),
+    count, hits = run(jnp.asarray(q), jnp.asarray(pad(rows)), jnp.asarray(pad(parity)),
                       jnp.asarray(0, jnp.int32))
     return np.asarray(count), np.asarray(hits)
 

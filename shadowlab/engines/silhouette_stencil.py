@@ -36,6 +36,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
 
@@ -191,28 +192,47 @@ def binned_side_kernel(zfail: bool):
 SPANS = ("behind", "eye_ray", "front", "none")
 
 
-def _cap_crossings(qv, e0, e1, e2, t, s, span, back_caps, mul):
+def cap_table(edge_rows: np.ndarray, tri_edges: np.ndarray, terms: np.ndarray, span: str,
+              back_caps: bool) -> np.ndarray:
+    """The columns a caps pass reads, one row per caster: [K, 4 (+ 9) (+ 9)].
+
+    edge_rows [E, 16]: the edge table (:func:`edge_table`); tri_edges int [K, 3]: each
+    caster's sorted edges (lo, mid), (mid, hi), (lo, hi) as rows of it; terms [K, 4]:
+    n_T and n_T . lo'. Columns: the terms, then (unless ``span == "none"``) A' x B' of
+    the three edges (the front cap's tests), then (with ``back_caps``) r of the three
+    (the back cap's). Only these columns are gathered per step, a third of the edge rows'.
+    """
+    parts = [np.asarray(terms)]
+    for used, first in ((span != "none", 6), (back_caps, 13)):
+        if used:
+            parts.append(edge_rows[:, first:first + 3][tri_edges].reshape(len(tri_edges), 9))
+    return np.concatenate(parts, axis=1)
+
+
+def _cap_crossings(qv, row, s, span, back_caps, mul):
     """Stencil and update increments (int32 [...]) of one caster per sample.
 
-    qv: the samples' coordinates (3 arrays [...]); e0, e1, e2: the edge-table rows of
-    the caster's sorted edges, t: its cap terms and s: its s_T, each indexable by column
-    (scalars, or arrays broadcasting against ``qv``). The same operations in the same
-    order for the full and the binned pass (so both see the same bits).
+    qv: the samples' coordinates (3 arrays [...]); row: the caster's :func:`cap_table`
+    row and s its s_T, indexable by column (scalars, or arrays broadcasting against
+    ``qv``). The same operations in the same order for the full and the binned pass (so
+    both see the same bits).
     """
-    nq = _dot(qv, t, 0, mul)
+    nq = _dot(qv, row, 0, mul)
     sq = jnp.where(nq > 0, 1, -1).astype(jnp.int32)
+    back_col = 4
     if span == "none":                                   # back caps only
         stencil = updates = jnp.zeros(jnp.broadcast_shapes(nq.shape, jnp.shape(s)),
                                       jnp.int32)
     else:
-        f1 = _dot(qv, e0, 6, mul) >= 0
-        f2 = _dot(qv, e1, 6, mul) >= 0
+        back_col = 13
+        f1 = _dot(qv, row, 4, mul) >= 0
+        f2 = _dot(qv, row, 7, mul) >= 0
         # the (lo, hi) edge runs against the winding: its bit is the complement of the
         # shared row's (not ``<= 0``), so a ray exactly on an edge (a dot product of
         # exactly 0) is inside exactly one of the two triangles that share it
-        f3 = ~(_dot(qv, e2, 6, mul) >= 0)
+        f3 = ~(_dot(qv, row, 10, mul) >= 0)
         through = (f1 == f2) & (f2 == f3)
-        nlo = t[3]
+        nlo = row[3]
         same = ((nlo > 0) & (nq > 0)) | ((nlo < 0) & (nq < 0))   # lambda > 0
         rest = nlo - nq                                          # lambda > 1 ...
         far = ((rest > 0) & (nq > 0)) | ((rest < 0) & (nq < 0))
@@ -226,9 +246,9 @@ def _cap_crossings(qv, e0, e1, e2, t, s, span, back_caps, mul):
         stencil = jnp.where(front, s * sq, 0)
         updates = front.astype(jnp.int32)
     if back_caps:
-        b1 = _dot(qv, e0, 13, mul) >= 0
-        b2 = _dot(qv, e1, 13, mul) >= 0
-        b3 = ~(_dot(qv, e2, 13, mul) >= 0)
+        b1 = _dot(qv, row, back_col, mul) >= 0
+        b2 = _dot(qv, row, back_col + 3, mul) >= 0
+        b3 = ~(_dot(qv, row, back_col + 6, mul) >= 0)
         back = (b1 == b2) & (b2 == b3) & (s * sq < 0) & (nq != 0)
         stencil = stencil + back.astype(jnp.int32)
         updates = updates + back.astype(jnp.int32)
@@ -242,13 +262,14 @@ def _check_span(span):
 
 @functools.lru_cache(maxsize=None)
 def cap_kernel(chunk: int, span: str, back_caps: bool):
-    """Jitted ``run(q, edges, tri, sign, zero) -> (stencil int32 [S], updates int32 [S])``.
+    """Jitted ``run(q, table, sign, zero) -> (stencil int32 [S], updates int32 [S])``.
 
     Cap crossings of each sample's view ray, counted as ZFAIL does (+1 where the ray
     leaves a volume, -1 where it enters). q [S, 3] eye-relative points (the ray is
-    ``lambda q'``, the point at lambda = 1); edges [T, 3, 16]: the edge-table rows of each
-    triangle's sorted edges (lo, mid), (mid, hi), (lo, hi); tri [T, 4]: n_T = (mid - lo)
-    x (hi - lo) and n_T . lo'; sign int32 [T]: s_T (0 = no volume, also for padding).
+    ``lambda q'``, the point at lambda = 1); table [T, c]: each triangle's
+    :func:`cap_table` row for the same ``span`` and ``back_caps`` (its sorted edges
+    (lo, mid), (mid, hi), (lo, hi); n_T = (mid - lo) x (hi - lo) and n_T . lo'); sign int32
+    [T]: s_T (0 = no volume, also for padding).
 
     ``span`` selects the front caps counted: "behind" (lambda > 1: true caps behind the
     point), "eye_ray" (lambda > 0: caps at infinity, eq. 6, drawn wherever the eye ray
@@ -261,42 +282,37 @@ def cap_kernel(chunk: int, span: str, back_caps: bool):
     _check_span(span)
 
     @jax.jit
-    def run(q, edges, tri, sign, zero):
+    def run(q, table, sign, zero):
         mul = opaque_multiplier(zero)
         qv = [q[:, 0], q[:, 1], q[:, 2]]
 
         def body(i, carry):
             stencil, updates = carry
-            eb = jax.lax.dynamic_slice_in_dim(edges, i * chunk, chunk)
-            tb = jax.lax.dynamic_slice_in_dim(tri, i * chunk, chunk)
+            tb = jax.lax.dynamic_slice_in_dim(table, i * chunk, chunk)
             sb = jax.lax.dynamic_slice_in_dim(sign, i * chunk, chunk)
             for j in range(chunk):
-                e = eb[j]
-                ds, du = _cap_crossings(qv, e[0], e[1], e[2], tb[j], sb[j], span,
-                                        back_caps, mul)
+                ds, du = _cap_crossings(qv, tb[j], sb[j], span, back_caps, mul)
                 stencil, updates = stencil + ds, updates + du
             return stencil, updates
 
         zeros = jnp.zeros(q.shape[0], jnp.int32)
-        return jax.lax.fori_loop(0, edges.shape[0] // chunk, body, (zeros, zeros))
+        return jax.lax.fori_loop(0, table.shape[0] // chunk, body, (zeros, zeros))
     return run
 
 
 @functools.lru_cache(maxsize=None)
 def binned_cap_kernel(span: str, back_caps: bool):
-    """Jitted ``run(q, blocks, start, length, steps, entries, edges, tri, sign, zero)``
+    """Jitted ``run(q, blocks, start, length, steps, entries, table, sign, zero)``
     -> (stencil, updates) int32 [C, N, B]: :func:`cap_kernel` over the per-block caster
     lists of :func:`_binned_loop` (the last caster row is the sentinel: sign 0)."""
     _check_span(span)
 
     @jax.jit
-    def run(q, blocks, start, length, steps, entries, edges, tri, sign, zero):
+    def run(q, blocks, start, length, steps, entries, table, sign, zero):
         mul = opaque_multiplier(zero)
 
         def crossings(qv, k):
-            e = edges[k]                                                  # [N, 3, 16]
-            cols = [e[:, r].T[..., None] for r in range(3)]               # [16, N, 1]
-            return _cap_crossings(qv, *cols, _columns(tri, k), sign[k][:, None], span,
+            return _cap_crossings(qv, _columns(table, k), sign[k][:, None], span,
                                   back_caps, mul)
-        return _binned_loop(q, blocks, start, length, steps, entries, edges.shape[0] - 1, crossings)
+        return _binned_loop(q, blocks, start, length, steps, entries, table.shape[0] - 1, crossings)
     return run

@@ -42,7 +42,7 @@ from ..engines.silhouette_bins import (batch_arrays, cap_shapes, clip_fins, fart
                                       nearest_depth, sample_grid, screen_bins, side_shapes,
                                       unbatch)
 from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
-                                          edge_table, side_kernel, vertex_terms)
+                                          cap_table, edge_table, side_kernel, vertex_terms)
 from ..geometry.caster_culling import front_face_culled
 from ..geometry.clip_visibility import CULL_MODES, side_visible
 from ..geometry.triangle_setup import shadow_volume_planes
@@ -297,14 +297,16 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         cap_crossings = np.zeros(samples.count, np.int64)
         if passes:
             with timer.stage("caps"):
-                tri_edges = _triangle_edges(adj, srt)
                 keep = np.flatnonzero(s_t != 0)
+                tri_edges = _triangle_edges(adj, srt)[keep]
+                terms = np.asarray(cap_terms)[keep]
                 # one zero-sign row at least: the binned pass reads it past a list's end
                 k_cap = bucket(len(keep) + 1, minimum=chunk)
-                edges3 = jnp.asarray(pad(etable[tri_edges[keep]], k_cap, dtype=dtype))
-                terms = jnp.asarray(pad(np.asarray(cap_terms)[keep], k_cap, dtype=dtype))
                 signs = jnp.asarray(pad(s_t[keep], k_cap, dtype=np.int32))
         for span, back, factor, drawn_caps in passes:
+            with timer.stage("caps"):
+                rows = jnp.asarray(pad(cap_table(etable, tri_edges, terms, span, back),
+                                       k_cap, dtype=dtype))
             if binned and len(keep):
                 with timer.stage("caps_bins"):
                     shapes = cap_shapes(verts[srt[keep]], light_rel[:3] if back else None)
@@ -315,12 +317,12 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                     sb = screen_bins(grid, shapes, eps_w, basis, near, far)
                     args = batch_arrays(grid, sb)
                 cs, cu = timer.run("caps", binned_cap_kernel(span, back), q_blocks,
-                                   *map(jnp.asarray, args), edges3, terms, signs, zero)
+                                   *map(jnp.asarray, args), rows, signs, zero)
                 cs, cu = unbatch(grid, args[0], cs, cu)
                 cap_tests += sb.tests
             else:
-                cs, cu = timer.run("caps", cap_kernel(chunk, span, back), q_rel, edges3,
-                                   terms, signs, zero)
+                cs, cu = timer.run("caps", cap_kernel(chunk, span, back), q_rel, rows,
+                                   signs, zero)
                 cs, cu = np.asarray(cs)[: samples.count], np.asarray(cu)[: samples.count]
                 cap_tests += samples.count * len(keep)
             # the kernel counts exits; caps crossed before q are entries of the ZPASS
