@@ -8,67 +8,81 @@ import pytest
 import shadowlab as sl
 import shadowlab.engines.silhouette_bins as bins
 from shadowlab.core.numerics import cross3, ordered_dot
-from shadowlab.engines.silhouette_bins import FRONT_CAP_PAD_FACTOR
+from shadowlab.engines.silhouette_bins import PAD_FACTOR
 from shadowlab.scene.procedural import default_view
 
 
-def _front_cap_trials(n, rng):
-    """n edges A, B (float32, eye-relative: distance 1 to 1e4, length 1e-6 to 0.3 of
-    it) and points q (float32) at a log-uniform angle theta off the plane through the
-    eye, A and B, on either side; theta is measured in units of eps * ratio."""
+def _plane_trials(form, n, rng):
+    """n predicates q' . (x X y) of one of the kernels' forms, in float32, with q near
+    their plane: (x, y) float32 [n, 3] each as the kernel forms them, the exact plane's
+    unit normal [n, 3] (float64 from the float32 inputs), the pad unit
+    ``_pair_ratio`` of the exact factors [n], q float32 [n, 3] and the exact normal.
+
+    Forms: "edge" A' x (B' - A') (the caps' and pi1's A' x B'), "light" L' x X' (sigma),
+    "side" (L' - A') x (B' - A') (r: rho2 and the back caps). Vertices lie 1 to 1e4 from
+    the eye, edges are 1e-6 to 0.3 of that long, the light 0.1 to 100 times as far; q
+    lies at a log-uniform angle off the plane, in units of eps times the pad unit."""
     dist = 10.0 ** rng.uniform(0, 4, n)
-    a = rng.normal(size=(n, 3))
-    a *= (dist / np.linalg.norm(a, axis=1))[:, None]
-    step = rng.normal(size=(n, 3))
-    step *= (dist * 10.0 ** rng.uniform(-6, np.log10(0.3), n)
-             / np.linalg.norm(step, axis=1))[:, None]
-    a32, b32 = a.astype(np.float32), (a + step).astype(np.float32)
-    a64, b64 = a32.astype(np.float64), b32.astype(np.float64)
-    normal = np.cross(a64, b64)
-    ratio = ((np.linalg.norm(a64, axis=1) + np.linalg.norm(b64, axis=1)) ** 2
-             / np.linalg.norm(normal, axis=1))
-    unit_n = normal / np.linalg.norm(normal, axis=1)[:, None]
-    # an in-plane direction: a mix of A and B, so q sweeps over the cap's own wedge
+
+    def point(scale):
+        p = rng.normal(size=(n, 3))
+        return p * (scale / np.linalg.norm(p, axis=1))[:, None]
+
+    a = point(dist).astype(np.float32)
+    b = (a + point(dist * 10.0 ** rng.uniform(-6, np.log10(0.3), n))).astype(np.float32)
+    light = point(dist * 10.0 ** rng.uniform(-1, 2, n)).astype(np.float32)
+    a64, b64, l64 = (v.astype(np.float64) for v in (a, b, light))
+    if form == "edge":
+        x, y, exact = a, b - a, (a64, b64 - a64)
+    elif form == "light":
+        x, y, exact = light, a, (l64, a64)
+    else:
+        x, y, exact = light - a, b - a, (l64 - a64, b64 - a64)
+    normal = np.cross(*exact)
+    keep = np.linalg.norm(normal, axis=1) > 0
+    unit_n = normal / np.where(keep, np.linalg.norm(normal, axis=1), 1.0)[:, None]
+    ratio = bins._pair_ratio(*exact)
     w = rng.uniform(-0.5, 1.5, n)[:, None]
-    along = (1 - w) * a64 + w * b64
+    along = (1 - w) * exact[0] + w * exact[1]
     along /= np.linalg.norm(along, axis=1)[:, None]
     eps = np.finfo(np.float32).eps
     units = 10.0 ** rng.uniform(-3, 1, n) * rng.choice([-1.0, 1.0], n)
     theta = np.clip(units * eps * ratio, -1.0, 1.0)
     depth = dist * rng.uniform(0.5, 2.0, n)
     q = (np.cos(theta)[:, None] * along + np.sin(theta)[:, None] * unit_n) * depth[:, None]
-    return a32, b32, q.astype(np.float32), ratio, unit_n
+    return (x[keep], y[keep], unit_n[keep], ratio[keep],
+            q[keep].astype(np.float32), normal[keep])
 
 
-def test_cap_plane_rounding_within_the_pad():
-    """The front caps' predicate q' . (A' x B'), evaluated in float32 as the kernels do
-    (ordered, unfused products), takes the wrong sign only for q within
-    FRONT_CAP_PAD_FACTOR eps (|A'| + |B'|)^2 / |A' x B'| of its plane, with a margin."""
+@pytest.mark.parametrize("form", ["edge", "light", "side"])
+def test_plane_predicate_rounding_within_the_pad(form):
+    """Each plane predicate of the kernels, evaluated in float32 as they do (the factors
+    formed as they form them, ordered unfused products), takes the wrong sign only for
+    q within a small part of the pad's angle (PAD_FACTOR eps ratio 2 (1 + r^2), ratio
+    = 1 + |x| |y| / |x x y| of the exact factors) of its plane."""
     rng = np.random.default_rng(11)
     eps = float(np.finfo(np.float32).eps)
     worst, wrong_total = 0.0, 0
+    cols = [lambda v, k=k: v[:, k] for k in range(3)]
     for _ in range(4):
-        a32, b32, q32, ratio, unit_n = _front_cap_trials(250_000, rng)
-        cols = [lambda x, k=k: x[:, k] for k in range(3)]
-        ab = cross3([c(a32) for c in cols], [c(b32) for c in cols], np.multiply)
-        got = ordered_dot([c(q32) for c in cols], ab, np.multiply)
+        x, y, unit_n, ratio, q32, normal = _plane_trials(form, 250_000, rng)
+        c = cross3([f(x) for f in cols], [f(y) for f in cols], np.multiply)
+        got = ordered_dot([f(q32) for f in cols], c, np.multiply)
         assert got.dtype == np.float32
         q64 = q32.astype(np.float64)
-        exact = np.einsum("kd,kd->k", q64, np.cross(a32.astype(np.float64),
-                                                     b32.astype(np.float64)))
+        exact = np.einsum("kd,kd->k", q64, normal)
         # the angle of the rounded q (as the kernel sees it) off the exact plane
         angle = np.abs(np.einsum("kd,kd->k", q64, unit_n)) / np.linalg.norm(q64, axis=1)
         # float64's own error is ~1e-9 of float32's: exact signs away from zero
-        clear = np.abs(exact) > 1e-12 * np.abs(q64).sum(1) * np.abs(a32).sum(1) \
-            * np.abs(b32).sum(1)
+        clear = angle > 1e-12 * ratio
         wrong = clear & (np.sign(got) != np.sign(exact))
         wrong_total += int(np.count_nonzero(wrong))
         if wrong.any():
             worst = max(worst, float(np.max(angle[wrong] / (eps * ratio[wrong]))))
     # the trials reach into the rounding zone (the check can fail) ...
     assert wrong_total > 100
-    # ... and every wrong sign lies well inside the pad's angle
-    assert worst < FRONT_CAP_PAD_FACTOR / 8, worst
+    # ... and every wrong sign lies well inside the pad's angle (2 PAD_FACTOR units)
+    assert worst < PAD_FACTOR / 4, worst
 
 
 def test_the_grid_spans_the_core_of_q_and_an_outlier_lands_in_a_border_cell():

@@ -33,11 +33,15 @@ a cone cut to the box of all q still meets that rectangle at q). A primitive goe
 padded bounding box meets. A sample whose q is not in front of the eye plane tests
 every primitive.
 
-The padding covers the rounding of the kernels' plane predicates ``q' . (a x b)`` in the
-working precision: each can take the wrong sign only within an angle of about
-``c eps (|a| + |b|)^2 / |a x b|`` of its plane, which the projection stretches by at most
-``1 + r^2`` (r: distance from the projection centre); the pad is ``PAD_FACTOR`` times
-that bound over every predicate vector pair of the primitive. Where the count only
+The padding covers the rounding of the kernels' plane predicates ``q' . (x x y)`` in the
+working precision. The kernels form each normal from factors that are inputs or single
+roundings of differences of inputs (``A' x (B' - A')`` for ``A' x B'``, ``L' x X'``,
+``(L' - L_w A') x (B' - A')``), so the normal's error is a few eps |x| |y| and the
+predicate can take the wrong sign only within an angle of about
+``c eps (1 + |x| |y| / |x x y|)`` of its plane (c about 9 by a worst-case count of the
+roundings, 0.5 measured), which the projection stretches by at most ``1 + r^2`` (r:
+distance from the projection centre); the pad is ``PAD_FACTOR`` times that unit over
+every predicate of the primitive. Where the count only
 takes crossings between the eye and q (ZPASS sides, the caps before q), a primitive
 whose nearest point is beyond the farthest q of a block by more than ``DEPTH_MARGIN`` of
 that depth is left out of that block's list; where it only takes crossings beyond q
@@ -66,11 +70,10 @@ from ..core.capacity import bucket, check_int32, pad, run_offsets
 from ..core.sorting import stable_argsort
 
 TILE = 16           # about TILE x TILE pixels of samples per cell
-PAD_FACTOR = 16.0   # pad = PAD_FACTOR * eps * (|a| + |b|)^2 / |a x b| * 2 (1 + r^2)
-#: the pad factor of the front caps' plane predicates q' . (A' x B') (pure cross-dot
-#: products of eye-relative vertices; measured worst error 0.08 eps (|a| + |b|)^2 / |a x b|
-#: in float32, tests/test_silhouette_bins.py::test_cap_plane_rounding_within_the_pad)
-FRONT_CAP_PAD_FACTOR = 4.0
+#: pad = PAD_FACTOR eps ratio 2 (1 + r^2), ratio = 1 + |x| |y| / |x x y| of the factors
+#: of each plane predicate (measured worst wrong sign in float32: 0.49 eps ratio,
+#: tests/test_silhouette_bins.py::test_plane_predicate_rounding_within_the_pad)
+PAD_FACTOR = 16.0
 DEPTH_MARGIN = 1.0 / 64.0
 #: samples per block (one list) and blocks per batch (one loop) of the binned kernels;
 #: a grid with smaller blocks gets proportionally more blocks per batch
@@ -272,40 +275,40 @@ def _norm(x):
 
 
 def _pair_ratio(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """[K]: (|x| + |y|)^2 / |x x y| of vector pairs [K, 3] (inf where x x y = 0)."""
+    """[K]: the pad unit 1 + |x| |y| / |x x y| (1 + 1 / sin of their angle) of the
+    factors x, y [K, 3] of a predicate's normal x x y (inf where x x y = 0)."""
     cr = _norm(np.cross(x, y))
-    num = (_norm(x) + _norm(y)) ** 2
-    return np.where(cr > 0, num / np.where(cr > 0, cr, 1), np.inf)
+    num = _norm(x) * _norm(y)
+    return np.where(cr > 0, 1.0 + num / np.where(cr > 0, cr, 1), np.inf)
 
 
 def cap_shapes(tri: np.ndarray, light: np.ndarray | None) -> list:
-    """Screen shapes of K casters: [(points [K, 3, 3], ratio [K], pad factor)], the front
-    cap (``FRONT_CAP_PAD_FACTOR``) and, with ``light`` ([3] eye-relative point light, back
-    caps), the back cap (``PAD_FACTOR``)."""
+    """Screen shapes of K casters (vertices tri [K, 3, 3] in vertex-index order, as the
+    edge table's rows run): [(points [K, 3, 3], ratio [K])], the front cap (normals
+    A' x (B' - A') of its edges) and, with ``light`` ([3] eye-relative point light, back
+    caps), the back cap (normals (L' - A') x (B' - A'))."""
     t = np.asarray(tri, np.float64)
-    ratio = np.maximum.reduce([_pair_ratio(t[:, i], t[:, j]) for i, j in ((0, 1), (1, 2), (0, 2))])
-    out = [(t, ratio, FRONT_CAP_PAD_FACTOR)]
+    edges = ((0, 1), (1, 2), (0, 2))
+    out = [(t, np.maximum.reduce([_pair_ratio(t[:, i], t[:, j] - t[:, i]) for i, j in edges]))]
     if light is not None:
         d = t - np.asarray(light, np.float64)
-        ratio = np.maximum.reduce([_pair_ratio(d[:, i], d[:, j] - d[:, i])
-                                   for i, j in ((0, 1), (1, 2), (0, 2))])
-        out.append((d, ratio, PAD_FACTOR))
+        out.append((d, np.maximum.reduce([_pair_ratio(d[:, i], d[:, j] - d[:, i])
+                                          for i, j in edges])))
     return out
 
 
-def _side_planes(a, b, da):
-    """The side planes of R sides (eye-relative a, b [R, 3], D_A [R, 3]): the normal
-    r = (L' - L_w A') x (B' - A') [R, 3] as the kernels form it, the eye's distance from
-    the plane [R] (0 where r = 0) and 1 / sin of the angle between the two factors [R]
-    (|x| |y| / |x x y|, inf where r = 0: r's relative rounding is about that times eps)."""
-    x, y = -da, b - a
-    r = np.cross(x, y)
+def _pi2_rounding(a, b, da, eps: float, q_bound) -> tuple[np.ndarray, np.ndarray]:
+    """The eye's distance from the side planes of R sides (eye-relative a, b [R, 3],
+    D_A [R, 3]; 0 where the plane is undefined) [R], and the distance [R] within which the
+    edge test pi2 = (q' - A') . r may take the wrong sign for a q with |q'| <= q_bound
+    (scalar or [R]): ``PAD_FACTOR`` eps |q' - A'| times the pad unit of r = (L' - L_w A')
+    x (B' - A') (whose error is a few eps |L' - L_w A'| |B' - A'|)."""
+    r = np.cross(-da, b - a)
     r_len = _norm(r)
     some = r_len > 0
-    safe = np.where(some, r_len, 1.0)
-    eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", a, r)) / safe, 0.0)
-    inv_sin = np.where(some, _norm(x) * _norm(y) / safe, np.inf)
-    return r, eye_dist, inv_sin
+    eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", a, r)) / np.where(some, r_len, 1.0),
+                        0.0)
+    return eye_dist, PAD_FACTOR * eps * _pair_ratio(-da, b - a) * (_norm(a) + q_bound)
 
 
 def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
@@ -326,11 +329,11 @@ def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
     lw = float(light[3])
     da, db = lw * a - lv, lw * b - lv
     r_ratio = _pair_ratio(-da, b - a)
-    _, eye_dist, _ = _side_planes(a, b, da)
-    eye_near = eye_dist <= PAD_FACTOR * eps * (1 + r_ratio) * (_norm(a) + q_max)
+    eye_dist, rounding = _pi2_rounding(a, b, da, eps, q_max)
+    eye_near = eye_dist <= rounding
     pi2 = 8 * (1 + _norm(a) / max(q_min, np.finfo(np.float64).tiny)) * (1 + r_ratio)
     ratio = np.maximum.reduce([
-        _pair_ratio(lv, a), _pair_ratio(lv, b), _pair_ratio(a, b), r_ratio,
+        _pair_ratio(lv, a), _pair_ratio(lv, b), _pair_ratio(a, b - a), r_ratio,
         np.where(eye_near, pi2, 0.0)])
     return [(np.stack([a, b, da, db], axis=1), ratio)]
 
@@ -361,12 +364,11 @@ def clip_fins(shape: tuple, grid: "SampleGrid", basis, eps: float) -> tuple[tupl
     Rounding: the new far facet stands for the edge test pi2 (crossing before or after
     q); a q whose view ray meets the fin only beyond Z >= (1 + DEPTH_MARGIN) z_q lies at
     least ``DEPTH_MARGIN / (1 + DEPTH_MARGIN)`` of the eye's distance from the side
-    plane. A fin is cut only where that exceeds pi2's rounding distance, about
-    eps |q' - A'| (1 + 1 / sin) with the angle between r's factors
-    (:func:`_side_planes`), times ``PAD_FACTOR``, where |q'| is bounded by the largest of
-    the samples in the cells of the whole fin's padded box (the only ones a cut can drop);
-    the other predicates keep their padded facets. Samples whose q is not in front of the eye (the 'all' cell) test every side
-    anyway.
+    plane. A fin is cut only where that exceeds pi2's rounding distance
+    (:func:`_pi2_rounding`), |q'| bounded by the largest of the samples in the cells of
+    the whole fin's padded box (the only ones a cut can drop); the other predicates keep
+    their padded facets. Samples whose q is not in front of the eye (the 'all' cell) test
+    every side anyway.
 
     Args:
         shape: (points [R, 4, 3] float64 (A, B, D_A, D_B), ratio [R]) of
@@ -394,11 +396,7 @@ def clip_fins(shape: tuple, grid: "SampleGrid", basis, eps: float) -> tuple[tupl
     q_len = np.sqrt(np.einsum("nbk,nbk->nb", q64, q64)).max(axis=1)
     q_near = _RangeMax(_per_cell(grid, q_len[real], real)).query(
         *_cell_box(pts[able], ratio[able], eps, basis, grid))
-    _, eye_dist, inv_sin = _side_planes(a[able], b[able], da[able])
-    # pi2 = (q' - A') . r as a distance rounds by about eps |q' - A'| (1 + 1 / sin) (x and
-    # y = B' - A' are single roundings of exact inputs, so r's error is about
-    # eps |x| |y|); PAD_FACTOR is the margin on that estimate, as for the pads
-    rounding = PAD_FACTOR * eps * (1 + inv_sin) * (_norm(a[able]) + q_near)
+    eye_dist, rounding = _pi2_rounding(a[able], b[able], da[able], eps, q_near)
     able[able] = eye_dist > (1 + 1 / DEPTH_MARGIN) * rounding
     limit = np.full(len(pts), float(grid.zmax[real].max()) * (1 + DEPTH_MARGIN))
     out = pts
@@ -437,9 +435,9 @@ def _per_cell(grid: "SampleGrid", values: np.ndarray, real: np.ndarray) -> np.nd
 def _cell_box(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid"):
     """(row0, row1, column0, column1) int64 [K] each: the clamped cell range of the
     padded screen boxes of K bounded primitives (generators pts [K, P, 3], all in front of
-    the eye; pad as in :func:`_boxes` with ``PAD_FACTOR``)."""
+    the eye; pad as in :func:`_boxes`)."""
     u, v, _ = _project_columns(pts, basis)
-    pad = _pad(ratio, np.max(u * u + v * v, axis=1), eps, PAD_FACTOR)
+    pad = _pad(ratio, np.max(u * u + v * v, axis=1), eps)
     return (grid.index(v.min(1) - pad, 1), grid.index(v.max(1) + pad, 1),
             grid.index(u.min(1) - pad, 0), grid.index(u.max(1) + pad, 0))
 
@@ -474,11 +472,12 @@ class _RangeMax:
         return out
 
 
-def _pad(ratio: np.ndarray, r2: np.ndarray, eps: float, factor: float) -> np.ndarray:
+def _pad(ratio: np.ndarray, r2: np.ndarray, eps: float) -> np.ndarray:
     """[K]: the screen pad of K primitives whose predicates have the rounding ratios
     ``ratio`` (inf: none usable) and whose region reaches r2 = u^2 + v^2 (module
-    docstring: ``factor`` eps ratio, stretched by the projection, 2 (1 + r^2))."""
-    return (factor * eps * np.where(np.isfinite(ratio), ratio, 0.0) + FACET_SLACK) * (2.0 + 2.0 * r2)
+    docstring: ``PAD_FACTOR`` eps ratio, stretched by the projection, 2 (1 + r^2))."""
+    unit = np.where(np.isfinite(ratio), ratio, 0.0)
+    return (PAD_FACTOR * eps * unit + FACET_SLACK) * (2.0 + 2.0 * r2)
 
 
 #: a generator pair spans a facet plane only if |x x y| >= this times |x| |y|
@@ -570,8 +569,7 @@ def _clip_box(box: np.ndarray, lines, pad: np.ndarray) -> tuple[np.ndarray, np.n
     return np.where(any_in[:, None], out, 0.0), any_in
 
 
-def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid",
-           factor: float = PAD_FACTOR):
+def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid"):
     """Screen regions of K primitives with generators pts [K, P, 3]: padded boxes [K, 4]
     (u0, u1, v0, v1) cut to the padded cone, the cone's padded screen half-planes
     (a, b, c, valid [K, F] each, pad [K]), bool [K] whether the primitive is binned
@@ -585,7 +583,7 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
     r2_box = float(np.max(corners[:, 0] ** 2 + corners[:, 1] ** 2))
     r2 = np.where(bounded, np.max(np.where(bounded[:, None], u * u + v * v, 0.0), axis=1),
                   r2_box)
-    pad = _pad(ratio, r2, eps, factor)
+    pad = _pad(ratio, r2, eps)
     with np.errstate(invalid="ignore"):
         hull = np.stack([u.min(1), u.max(1), v.min(1), v.max(1)], axis=1)
     sample_box = np.array([corners[:, 0].min(), corners[:, 0].max(),
@@ -627,8 +625,8 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
     """Bin K primitives into the cells of ``grid`` (host, float64).
 
     Args:
-        shapes: [(points [K, P, 3], ratio [K][, pad factor])] from :func:`cap_shapes` or
-            :func:`side_shapes` (factor default ``PAD_FACTOR``): a primitive goes into
+        shapes: [(points [K, P, 3], ratio [K])] from :func:`cap_shapes` or
+            :func:`side_shapes`: a primitive goes into
             the cells of each of its boxes.
         eps: machine epsilon of the working precision (sets the padding).
         basis: the camera's (right, up, back) unit vectors.
@@ -642,7 +640,7 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
         raise ValueError("screen_bins: a depth cut by near or by far depth, not both")
     n_prim = len(shapes[0][0])
     n_cells = grid.cells
-    boxes = [_boxes(pts, ratio, eps, basis, grid, *factor) for pts, ratio, *factor in shapes]
+    boxes = [_boxes(pts, ratio, eps, basis, grid) for pts, ratio in shapes]
     # primitives in order of rank: nearest depth with a depth cut (so each cell's list
     # is in depth order), else index order
     # the cut as one rule: a block takes the primitives whose rank key is <= its limit
