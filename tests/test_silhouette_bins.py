@@ -102,13 +102,15 @@ def test_the_grid_spans_the_core_of_q_and_an_outlier_lands_in_a_border_cell():
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("behind", [0, 7])
 def test_sample_grid_layout_against_a_plain_loop(dtype, behind):
-    """Every sample sits in its cell's blocks, in order of depth within the cell (ties in
-    sample order); each block's depth range, its cell and its q rows match a per-sample
-    loop; samples behind the eye (``behind`` of them) go to the extra cell, depth inf."""
+    """Every sample sits in its cell's blocks, in order of its depth key within the cell
+    (ties in sample order); each block's depth range, its cell and its q rows match a
+    per-sample loop; samples behind the eye (``behind`` of them) go to the extra cell,
+    depth inf."""
     rng = np.random.default_rng(5)
     s = 3000
-    q = np.stack([rng.uniform(-1, 1, s), rng.uniform(-1, 1, s),
-                  -rng.choice([1.0, 2.0, 3.0], s)], 1)       # repeated depths: ties
+    depth = np.where(rng.random(s) < 0.5, rng.choice([1.0, 2.0, 3.0], s),   # ties
+                     rng.uniform(1.0, 3.0, s) * (1 + 1e-7 * rng.random(s)))
+    q = np.stack([rng.uniform(-1, 1, s), rng.uniform(-1, 1, s), -depth], 1)
     q[rng.choice(s, behind, replace=False), 2] *= -1.0
     q = q.astype(dtype)
     basis = (np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]))
@@ -121,10 +123,10 @@ def test_sample_grid_layout_against_a_plain_loop(dtype, behind):
         col, row = (min(max(int(np.floor((q64[i, k] / z[i] - grid.lo[k]) * grid.scale[k])),
                             0), grid.shape[k] - 1) for k in (0, 1))
         assert grid.cell[i] == row * grid.shape[0] + col
+    key = bins._depth_key(z, good)
     for c in np.unique(grid.cell):
         members = np.flatnonzero(grid.cell == c)
-        depth = np.where(good[members], z[members], np.inf)
-        want = members[np.lexsort((members, depth))]       # by depth, ties by index
+        want = members[np.lexsort((members, key[members]))]     # by key, ties by index
         slots = grid.slot[want]
         first = slots[0] // grid.block
         assert np.array_equal(slots, first * grid.block + np.arange(len(want)))
@@ -133,11 +135,28 @@ def test_sample_grid_layout_against_a_plain_loop(dtype, behind):
             assert grid.block_cell[b] == c
             assert grid.zmax[b] == (z[inside].max() if good[inside].all() else np.inf)
             assert grid.zmin[b] == (z[inside].min() if good[inside].all() else -np.inf)
+            assert grid.q_len_max[b] == np.linalg.norm(q64[inside], axis=1).max()
             np.testing.assert_array_equal(grid.q[b][: len(inside)], q[inside])
             assert not grid.q[b][len(inside):].any()
     assert not grid.q[-1].any() and grid.q.dtype == dtype
+    lengths = np.linalg.norm(q64, axis=1)
+    assert grid.q_len_range == (lengths.min(), lengths.max())
     empty = bins.sample_grid(q[:0], basis, (64, 48), tile=16, block=8)
     assert empty.q.shape == (1, 8, 3) and len(empty.zmax) == len(empty.slot) == 0
+
+
+def test_depth_key_is_monotone_in_depth():
+    """The 16-bit depth key never orders a nearer sample after a farther one, spans the
+    whole range, and gives the samples that are not in front of the eye the last key."""
+    rng = np.random.default_rng(8)
+    z = np.concatenate([10.0 ** rng.uniform(-3, 5, 5000), [0.0, -2.0, np.inf]])
+    good = np.isfinite(z) & (z > 0)
+    key = bins._depth_key(z, good)
+    order = np.argsort(z[good])
+    assert np.all(np.diff(key[good][order].astype(np.int64)) >= 0)
+    assert key[good].min() == 0 and key[good].max() == 65535
+    assert np.all(key[~good] == 65535)
+    assert np.all(bins._depth_key(np.full(4, 2.0), np.ones(4, bool)) == 0)
 
 
 def _unbinned_small_grid(stencil, precision):
@@ -282,8 +301,7 @@ class _FlatGrid:
         self.lo, self.scale = (-box, -box), (8 / (2 * box), 8 / (2 * box))
         self.block_cell = np.arange(64)
         self.zmax = np.full(64, depth)
-        self.q = np.zeros((65, 1, 3))
-        self.q[:64, 0, 2] = depth
+        self.q_len_max = np.full(64, depth)
 
     def index(self, x, axis):
         return bins.SampleGrid.index(self, x, axis)

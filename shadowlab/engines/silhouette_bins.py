@@ -100,6 +100,8 @@ class SampleGrid:
             the tail of each cell's last block are zeros).
         q_box: (u0, u1, v0, v1) the box of every projected q in front of the eye (the
             conservative region of unbounded primitives; None: the grid's span).
+        q_len_max: float64 [Nb] the largest |q'| of each block (None: not computed).
+        q_len_range: (smallest, largest) |q'| of every sample (float64).
     """
 
     cell: np.ndarray
@@ -113,6 +115,8 @@ class SampleGrid:
     q: np.ndarray
     tile: int = TILE
     q_box: tuple = None
+    q_len_max: np.ndarray = None
+    q_len_range: tuple = (np.inf, 0.0)
 
     @property
     def block(self) -> int:
@@ -202,9 +206,11 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     else:
         cell = np.full(len(q), n_cells, np.int64)
         cell[good] = grid.index(vq[good], 1) * shape[0] + grid.index(uq[good], 0)
-    # by cell (a radix sort of small ints); within a cell by depth
+    # by cell, within a cell by depth: two radix sorts of 16-bit keys (the depth as its
+    # logarithm in 65,536 steps over the samples' range: ties keep pixel order, and the
+    # blocks' depth ranges below are exact whatever the order)
     depth = np.where(good, zq, np.inf)
-    order = np.argsort(depth, kind="stable")
+    order = np.argsort(_depth_key(zq, good), kind="stable")
     order = order[np.argsort(cell[order].astype(np.uint16 if n_cells < 65536 else np.int64),
                              kind="stable")]
     sorted_cell = cell[order]
@@ -227,9 +233,26 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     for_min = for_max if every else np.where(good, zq, -np.inf)[order]
     zmax = np.maximum.reduceat(for_max, first_of_block) if len(order) else for_max
     zmin = np.minimum.reduceat(for_min, first_of_block) if len(order) else for_max
+    length = np.sqrt(sum(np.asarray(q[:, k], np.float64) ** 2 for k in range(3)))
+    q_len_max = (np.maximum.reduceat(length[order], first_of_block) if len(order)
+                 else length)
+    q_len_range = (float(length.min()), float(length.max())) if len(q) else (np.inf, 0.0)
     return dataclasses.replace(grid, cell=cell, zmax=zmax, zmin=zmin,
                                block_cell=np.repeat(cells, nb_cell), slot=slot,
-                               q=qb.reshape(n_blocks + 1, block, 3))
+                               q=qb.reshape(n_blocks + 1, block, 3), q_len_max=q_len_max,
+                               q_len_range=q_len_range)
+
+
+def _depth_key(z: np.ndarray, good: np.ndarray) -> np.ndarray:
+    """uint16 [S]: log(z) of the samples ``good`` in 65,536 steps over their range (the
+    others 65,535), monotone in z."""
+    key = np.full(len(z), 65535, np.uint16)
+    if good.any():
+        lz = np.log(z[good])
+        lo, span = float(lz.min()), float(lz.max() - lz.min())
+        scale = 65535.0 / span if span > 0 else 0.0
+        key[good] = np.minimum((lz - lo) * scale, 65535.0).astype(np.uint16)
+    return key
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -392,9 +415,7 @@ def clip_fins(shape: tuple, grid: "SampleGrid", basis, eps: float) -> tuple[tupl
     far_table = _RangeMax(_per_cell(grid, grid.zmax[real], real))
     # the samples a cut can drop lie in the cells of the whole fin's box: their largest
     # |q'| bounds |q' - A'| (a far outlier q elsewhere on screen does not count)
-    q64 = grid.q[:-1].astype(np.float64)
-    q_len = np.sqrt(np.einsum("nbk,nbk->nb", q64, q64)).max(axis=1)
-    q_near = _RangeMax(_per_cell(grid, q_len[real], real)).query(
+    q_near = _RangeMax(_per_cell(grid, grid.q_len_max[real], real)).query(
         *_cell_box(pts[able], ratio[able], eps, basis, grid))
     eye_dist, rounding = _pi2_rounding(a[able], b[able], da[able], eps, q_near)
     able[able] = eye_dist > (1 + 1 / DEPTH_MARGIN) * rounding

@@ -256,9 +256,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         if binned and len(drawn):
             with timer.stage("stencil_bins"):
                 ends = [verts[ev[adj.record_edge[drawn], k]] for k in range(2)]
-                q_len = np.sqrt(np.einsum("ij,ij->i", q_host, q_host))
-                shapes = side_shapes(*ends, light_rel, eps_w, q_len.min(initial=np.inf),
-                                     q_len.max(initial=0.0))
+                shapes = side_shapes(*ends, light_rel, eps_w, *grid.q_len_range)
                 near = None
                 if not zfail:       # crossings before q only: cut by depth, fins clipped
                     near = nearest_depth(shapes[0][0], basis, directions=2)
