@@ -136,6 +136,7 @@ def test_sample_grid_layout_against_a_plain_loop(dtype, behind):
             assert grid.zmax[b] == (z[inside].max() if good[inside].all() else np.inf)
             assert grid.zmin[b] == (z[inside].min() if good[inside].all() else -np.inf)
             assert grid.q_len_max[b] == np.linalg.norm(q64[inside], axis=1).max()
+            assert grid.block_count[b] == len(inside)
             np.testing.assert_array_equal(grid.q[b][: len(inside)], q[inside])
             assert not grid.q[b][len(inside):].any()
     assert not grid.q[-1].any() and grid.q.dtype == dtype

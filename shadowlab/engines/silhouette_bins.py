@@ -102,6 +102,7 @@ class SampleGrid:
             conservative region of unbounded primitives; None: the grid's span).
         q_len_max: float64 [Nb] the largest |q'| of each block (None: not computed).
         q_len_range: (smallest, largest) |q'| of every sample (float64).
+        block_count: int64 [Nb] the samples in each block (None: not computed).
     """
 
     cell: np.ndarray
@@ -117,6 +118,7 @@ class SampleGrid:
     q_box: tuple = None
     q_len_max: np.ndarray = None
     q_len_range: tuple = (np.inf, 0.0)
+    block_count: np.ndarray = None
 
     @property
     def block(self) -> int:
@@ -240,7 +242,8 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     return dataclasses.replace(grid, cell=cell, zmax=zmax, zmin=zmin,
                                block_cell=np.repeat(cells, nb_cell), slot=slot,
                                q=qb.reshape(n_blocks + 1, block, 3), q_len_max=q_len_max,
-                               q_len_range=q_len_range)
+                               q_len_range=q_len_range,
+                               block_count=np.diff(first_of_block, append=len(order)))
 
 
 def _depth_key(z: np.ndarray, good: np.ndarray) -> np.ndarray:
@@ -277,11 +280,6 @@ class ScreenBins:
     block_lengths: np.ndarray
     unbounded: int
     tests: int
-def _project(p: np.ndarray, basis) -> np.ndarray:
-    """[..., 3] (u, v, z): camera-frame projection of eye-relative points p [..., 3]."""
-    return np.stack(_project_columns(p, basis), axis=-1)
-
-
 def _project_columns(p: np.ndarray, basis) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """float64 (u, v, z) [...] of eye-relative points p [..., 3] (any float dtype), each
     coordinate converted to float64 once, as a column (no [..., 3] float64 copy)."""
@@ -590,14 +588,20 @@ def _clip_box(box: np.ndarray, lines, pad: np.ndarray) -> tuple[np.ndarray, np.n
     return np.where(any_in[:, None], out, 0.0), any_in
 
 
+def _across(op, x: np.ndarray) -> np.ndarray:
+    """[K]: ``op`` (np.minimum or np.maximum) over the P columns of x [K, P] (elementwise
+    over columns: a fraction of the time of ``x.min(1)`` for small P; NaN propagates
+    alike)."""
+    return functools.reduce(op, [x[:, k] for k in range(x.shape[1])])
+
+
 def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid"):
     """Screen regions of K primitives with generators pts [K, P, 3]: padded boxes [K, 4]
     (u0, u1, v0, v1) cut to the padded cone, the cone's padded screen half-planes
     (a, b, c, valid [K, F] each, pad [K]), bool [K] whether the primitive is binned
     at all (False: it goes into every cell), and bool [K] whether its region misses
     the samples' box (it then enters no cell)."""
-    uvz = _project(pts, basis)
-    u, v, z = uvz[..., 0], uvz[..., 1], uvz[..., 2]
+    u, v, z = _project_columns(pts, basis)
     bounded = np.all(z > 0, axis=1)
     ok = np.isfinite(ratio)
     corners = grid.box_corners()
@@ -606,7 +610,8 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
                   r2_box)
     pad = _pad(ratio, r2, eps)
     with np.errstate(invalid="ignore"):
-        hull = np.stack([u.min(1), u.max(1), v.min(1), v.max(1)], axis=1)
+        hull = np.stack([_across(np.minimum, u), _across(np.maximum, u),
+                         _across(np.minimum, v), _across(np.maximum, v)], axis=1)
     sample_box = np.array([corners[:, 0].min(), corners[:, 0].max(),
                            corners[:, 1].min(), corners[:, 1].max()])
     box = np.where(bounded[:, None], hull + pad[:, None] * np.array([-1, 1, -1, 1]),
@@ -707,7 +712,7 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
         below = np.searchsorted(rank_key[prim], limit, side="right")
         block_len = _count_below(ranks, starts[bc], lengths[bc], below)
         block_len = np.where(bc == n_cells, n_prim, block_len)
-    per_block = np.bincount(grid.slot // grid.block, minlength=len(bc))[: len(bc)]
+    per_block = grid.block_count
     return ScreenBins(entries, starts, lengths, block_len.astype(np.int64),
                       int((~bounded).sum()), int((block_len * per_block).sum()))
 
