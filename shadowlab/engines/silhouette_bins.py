@@ -203,20 +203,21 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     grid = SampleGrid(None, tuple(lo), tuple(scale), shape, None, None, None, None, None,
                       tile, tuple(box))
     n_cells = shape[0] * shape[1]
-    if every:
+    with np.errstate(invalid="ignore"):         # the cells of the bad q are replaced
         cell = grid.index(vq, 1) * shape[0] + grid.index(uq, 0)
-    else:
-        cell = np.full(len(q), n_cells, np.int64)
-        cell[good] = grid.index(vq[good], 1) * shape[0] + grid.index(uq[good], 0)
+    if not every:
+        cell[~good] = n_cells
     # by cell, within a cell by depth: two radix sorts of 16-bit keys (the depth as its
     # logarithm in 65,536 steps over the samples' range: ties keep pixel order, and the
     # blocks' depth ranges below are exact whatever the order)
-    depth = np.where(good, zq, np.inf)
+    depth = zq if every else np.where(good, zq, np.inf)
     order = np.argsort(_depth_key(zq, good), kind="stable")
     order = order[np.argsort(cell[order].astype(np.uint16 if n_cells < 65536 else np.int64),
                              kind="stable")]
     sorted_cell = cell[order]
-    cells, first, per_cell = np.unique(sorted_cell, return_index=True, return_counts=True)
+    first = np.flatnonzero(np.diff(sorted_cell, prepend=-1)) if len(order) else order
+    cells = sorted_cell[first]
+    per_cell = np.diff(first, append=len(order))
     nb_cell = -(-per_cell // block)
     rank = np.arange(len(order)) - np.repeat(first, per_cell)
     block_of = np.repeat(np.cumsum(nb_cell) - nb_cell, per_cell) + rank // block
@@ -231,16 +232,19 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     # a block's samples are consecutive in ``order``: its depth range by reduceat
     first_of_block = np.flatnonzero(rank % block == 0)
     # a q behind the eye counts as +inf for the farthest depth and -inf for the nearest
-    for_max = depth[order]
-    for_min = for_max if every else np.where(good, zq, -np.inf)[order]
-    zmax = np.maximum.reduceat(for_max, first_of_block) if len(order) else for_max
-    zmin = np.minimum.reduceat(for_min, first_of_block) if len(order) else for_max
+    # (such q fill the blocks of the extra cell, and no other q does)
+    in_order = depth[order]
+    zmax = np.maximum.reduceat(in_order, first_of_block) if len(order) else in_order
+    zmin = np.minimum.reduceat(in_order, first_of_block) if len(order) else in_order
+    block_cell = np.repeat(cells, nb_cell)
+    if not every:
+        zmin[block_cell == n_cells] = -np.inf
     length = np.sqrt(sum(np.asarray(q[:, k], np.float64) ** 2 for k in range(3)))
     q_len_max = (np.maximum.reduceat(length[order], first_of_block) if len(order)
                  else length)
     q_len_range = (float(length.min()), float(length.max())) if len(q) else (np.inf, 0.0)
     return dataclasses.replace(grid, cell=cell, zmax=zmax, zmin=zmin,
-                               block_cell=np.repeat(cells, nb_cell), slot=slot,
+                               block_cell=block_cell, slot=slot,
                                q=qb.reshape(n_blocks + 1, block, 3), q_len_max=q_len_max,
                                q_len_range=q_len_range,
                                block_count=np.diff(first_of_block, append=len(order)))
