@@ -790,13 +790,30 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
     Returns the non-empty spans, in order of primitive then row: (row, lo, hi, the
     index into ``prim``) int64 [M] each (cells lo..hi of cell row ``row``).
     """
-    a, b, c, valid, pad = (x[prim] for x in lines)
     x0, x1 = grid.index(box[prim, 0], 0), grid.index(box[prim, 1], 0)
     y0, y1 = grid.index(box[prim, 2], 1), grid.index(box[prim, 3], 1)
     ny = y1 - y0 + 1
     row = np.repeat(y0, ny) + run_offsets(ny)
-    v0, v1 = (e[row] for e in grid.cell_edges(1))
     lo, hi = np.repeat(x0, ny), np.repeat(x1, ny)
+    ok = np.ones(len(row), bool)
+    # only the rows of primitives with a facet line are cut (the others keep their box)
+    cut = lines[3][prim].any(axis=1)
+    rows = np.flatnonzero(np.repeat(cut, ny))
+    if len(rows):
+        which = prim[cut]
+        lo[rows], hi[rows], ok[rows] = _cut_rows(
+            grid, row[rows], lo[rows], hi[rows], [x[which] for x in lines], ny[cut])
+    some = np.flatnonzero(ok & (hi >= lo))
+    k = np.repeat(np.arange(len(prim)), ny)
+    return row[some], lo[some], hi[some], k[some]
+
+
+def _cut_rows(grid: "SampleGrid", row, lo, hi, lines, ny):
+    """The column spans ``lo..hi`` (int64 [M], rows ``row`` [M] of K primitives, ``ny``
+    [K] rows each, in order) cut by each primitive's padded half-planes ``lines`` (a, b,
+    c, valid [K, F], pad [K]); returns (lo, hi, ok bool [M]) (:func:`_row_spans`)."""
+    a, b, c, valid, pad = lines
+    v0, v1 = (e[row] for e in grid.cell_edges(1))
     ok = np.ones(len(row), bool)
     width = 1.0 / grid.scale[0] if grid.scale[0] > 0 else 0.0
     per_row = functools.partial(np.repeat, repeats=ny)     # a primitive's value, per row
@@ -818,9 +835,7 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
         lo = np.where(up & (bound > -np.inf), np.maximum(lo, cell), lo)
         hi = np.where(down & (bound < np.inf), np.minimum(hi, cell), hi)
         ok &= ~(up & (bound == np.inf)) & ~(down & (bound == -np.inf))
-    some = np.flatnonzero(ok & (hi >= lo))
-    k = np.repeat(np.arange(len(prim)), ny)
-    return row[some], lo[some], hi[some], k[some]
+    return lo, hi, ok
 
 
 def farthest_depth(points: np.ndarray, basis) -> np.ndarray:
