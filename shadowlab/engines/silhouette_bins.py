@@ -86,7 +86,8 @@ class SampleGrid:
     """The samples' screen cells and their blocks (S samples, Nc cells, Nb blocks).
 
     Attributes:
-        cell: int64 [S] the cell of each sample's q (Nc: q not in front of the eye).
+        cell: int64 [S] the cell of each sample's q (Nc: q not in front of the eye or not
+            finite).
         lo, scale: (u, v) origin and cells per unit of the grid; shape: (gx, gy). The
             grid spans the core of the projected q (:func:`core_range`); the border
             cells reach infinity, so a q outside the span lies in its clamped cell.
@@ -185,12 +186,12 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     """Cells and blocks of S evaluation points q [S, 3] (eye-relative, working dtype).
 
     The grid has about one cell per ``tile`` x ``tile`` pixels over the core of the
-    projected q (:func:`core_range`). The samples of a cell fill blocks of ``block`` (the last one padded with
-    zeros), in order of depth, so that a block's depth range (the depth cuts' limit) is
-    as narrow as its cell allows.
+    projected q (:func:`core_range`). The samples of a cell fill blocks of ``block``
+    (the last one padded with zeros) in order of depth (:func:`_depth_key`), so that a
+    block's depth range (the depth cuts' limit) is about as narrow as its cell allows.
     """
     uq, vq, zq = _project_columns(q, basis)
-    good = (zq > 0) & np.isfinite(uq) & np.isfinite(vq)
+    good = (zq > 0) & np.isfinite(zq) & np.isfinite(uq) & np.isfinite(vq)
     every = bool(good.all())        # the usual case: no masked copies of 1M columns
     shape = (max(1, -(-image_shape[1] // tile)), max(1, -(-image_shape[0] // tile)))
     lo, scale, box = [], [], []
