@@ -200,7 +200,8 @@ def cap_table(edge_rows: np.ndarray, tri_edges: np.ndarray, terms: np.ndarray, s
     caster's sorted edges (lo, mid), (mid, hi), (lo, hi) as rows of it; terms [K, 4]:
     n_T and n_T . lo'. Columns: the terms, then (unless ``span == "none"``) A' x B' of
     the three edges (the front cap's tests), then (with ``back_caps``) r of the three
-    (the back cap's). Only these columns are gathered per step, a third of the edge rows'.
+    (the back cap's): 13 or 22 of the 52 columns of three edge rows and the terms, which
+    is what the binned loop gathers per step.
     """
     parts = [np.asarray(terms)]
     for used, first in ((span != "none", 6), (back_caps, 13)):
