@@ -323,18 +323,19 @@ def cap_shapes(tri: np.ndarray, light: np.ndarray | None) -> list:
     return out
 
 
-def _pi2_rounding(a, b, da, eps: float, q_bound) -> tuple[np.ndarray, np.ndarray]:
+def _pi2_rounding(a, b, da, r_ratio, eps: float, q_bound) -> tuple[np.ndarray, np.ndarray]:
     """The eye's distance from the side planes of R sides (eye-relative a, b [R, 3],
     D_A [R, 3]; 0 where the plane is undefined) [R], and the distance [R] within which the
     edge test pi2 = (q' - A') . r may take the wrong sign for a q with |q'| <= q_bound
-    (scalar or [R]): ``PAD_FACTOR`` eps |q' - A'| times the pad unit of r = (L' - L_w A')
-    x (B' - A') (whose error is a few eps |L' - L_w A'| |B' - A'|)."""
+    (scalar or [R]): ``PAD_FACTOR`` eps |q' - A'| times r_ratio [R], the pad unit of
+    r = (L' - L_w A') x (B' - A') (``_pair_ratio(-da, b - a)``: r's error is a few
+    eps |L' - L_w A'| |B' - A'|)."""
     r = np.cross(-da, b - a)
     r_len = _norm(r)
     some = r_len > 0
     eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", a, r)) / np.where(some, r_len, 1.0),
                         0.0)
-    return eye_dist, PAD_FACTOR * eps * _pair_ratio(-da, b - a) * (_norm(a) + q_bound)
+    return eye_dist, PAD_FACTOR * eps * r_ratio * (_norm(a) + q_bound)
 
 
 def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
@@ -355,7 +356,7 @@ def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
     lw = float(light[3])
     da, db = lw * a - lv, lw * b - lv
     r_ratio = _pair_ratio(-da, b - a)
-    eye_dist, rounding = _pi2_rounding(a, b, da, eps, q_max)
+    eye_dist, rounding = _pi2_rounding(a, b, da, r_ratio, eps, q_max)
     eye_near = eye_dist <= rounding
     pi2 = 8 * (1 + _norm(a) / max(q_min, np.finfo(np.float64).tiny)) * (1 + r_ratio)
     ratio = np.maximum.reduce([
@@ -420,10 +421,10 @@ def clip_fins(shape: tuple, grid: "SampleGrid", basis, eps: float) -> tuple[tupl
     # |q'| bounds |q' - A'| (a far outlier q elsewhere on screen does not count)
     q_near = _RangeMax(_per_cell(grid, grid.q_len_max[real], real)).query(
         *_cell_box(pts[able], ratio[able], eps, basis, grid))
-    eye_dist, rounding = _pi2_rounding(a[able], b[able], da[able], eps, q_near)
+    a, b, da = a[able], b[able], da[able]
+    eye_dist, rounding = _pi2_rounding(a, b, da, _pair_ratio(-da, b - a), eps, q_near)
     able[able] = eye_dist > (1 + 1 / DEPTH_MARGIN) * rounding
     limit = np.full(len(pts), float(grid.zmax[real].max()) * (1 + DEPTH_MARGIN))
-    out = pts
     for step in range(rounds + 1):
         cut = able & (np.minimum(za, zb) <= limit)
         out = pts.copy()
@@ -462,8 +463,9 @@ def _cell_box(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "Samp
     the eye; pad as in :func:`_boxes`)."""
     u, v, _ = _project_columns(pts, basis)
     pad = _pad(ratio, np.max(u * u + v * v, axis=1), eps)
-    return (grid.index(v.min(1) - pad, 1), grid.index(v.max(1) + pad, 1),
-            grid.index(u.min(1) - pad, 0), grid.index(u.max(1) + pad, 0))
+    box = _hull_box(u, v) + pad[:, None] * np.array([-1, 1, -1, 1])
+    return (grid.index(box[:, 2], 1), grid.index(box[:, 3], 1),
+            grid.index(box[:, 0], 0), grid.index(box[:, 1], 0))
 
 
 class _RangeMax:
@@ -595,11 +597,14 @@ def _clip_box(box: np.ndarray, lines, pad: np.ndarray) -> tuple[np.ndarray, np.n
     return np.where(any_in[:, None], out, 0.0), any_in
 
 
-def _across(op, x: np.ndarray) -> np.ndarray:
-    """[K]: ``op`` (np.minimum or np.maximum) over the P columns of x [K, P] (elementwise
-    over columns: a fraction of the time of ``x.min(1)`` for small P; NaN propagates
-    alike)."""
-    return functools.reduce(op, [x[:, k] for k in range(x.shape[1])])
+def _hull_box(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """[K, 4] (u0, u1, v0, v1): the box of K projected generator sets u, v [K, P] (min and
+    max elementwise over the P columns: a fraction of the time of ``u.min(1)`` for small
+    P; NaN propagates alike)."""
+    def across(op, x):
+        return functools.reduce(op, [x[:, k] for k in range(x.shape[1])])
+    return np.stack([across(np.minimum, u), across(np.maximum, u),
+                     across(np.minimum, v), across(np.maximum, v)], axis=1)
 
 
 def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleGrid"):
@@ -617,8 +622,7 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
                   r2_box)
     pad = _pad(ratio, r2, eps)
     with np.errstate(invalid="ignore"):
-        hull = np.stack([_across(np.minimum, u), _across(np.maximum, u),
-                         _across(np.minimum, v), _across(np.maximum, v)], axis=1)
+        hull = _hull_box(u, v)
     sample_box = np.array([corners[:, 0].min(), corners[:, 0].max(),
                            corners[:, 1].min(), corners[:, 1].max()])
     box = np.where(bounded[:, None], hull + pad[:, None] * np.array([-1, 1, -1, 1]),
@@ -805,19 +809,14 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
     if len(rows):
         which, n_rows = prim[cut], ny[cut]
         # in pieces of about ROW_PIECE rows (primitives whole), so that the per-row
-        # arrays of a piece stay in cache: the same values, 2-3x faster on 4 M rows
+        # arrays of a piece stay in cache: the same values, 1.6x faster on 4 M rows
         ends = np.cumsum(n_rows)
-        starts = np.searchsorted(ends, np.arange(0, ends[-1], ROW_PIECE), side="right")
-        bounds = np.unique(np.append(starts, len(which)))
-        first = 0
-        for k0, k1 in zip(np.append(0, bounds[:-1]), bounds):
-            if k1 <= k0:
-                continue
-            last = int(ends[k1 - 1])
-            r = rows[first:last]
-            lo[r], hi[r], ok[r] = _cut_rows(grid, row[r], lo[r], hi[r],
-                                            [x[which[k0:k1]] for x in lines], n_rows[k0:k1])
-            first = last
+        splits = np.searchsorted(ends, np.arange(ROW_PIECE, ends[-1], ROW_PIECE), "right")
+        for part in np.split(np.arange(len(which)), np.unique(splits)):
+            if len(part):
+                r = rows[ends[part[0]] - n_rows[part[0]]:ends[part[-1]]]
+                lo[r], hi[r], ok[r] = _cut_rows(grid, row[r], lo[r], hi[r],
+                                                [x[which[part]] for x in lines], n_rows[part])
     some = np.flatnonzero(ok & (hi >= lo))
     k = np.repeat(np.arange(len(prim)), ny)
     return row[some], lo[some], hi[some], k[some]

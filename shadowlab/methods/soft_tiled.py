@@ -978,8 +978,8 @@ SOFT_DECLARATION = {
                                     allowed=("exact", "sphere", "both")),
                    "compact": Option(True, "defer: each flush step runs only on the lanes "
                                      "with recorded pairs left (lanes sorted by their pair "
-                                     "count, blocks of 512 that each run until their own "
-                                     "longest lane is done); False = every "
+                                     f"count, blocks of {FLUSH_BLOCK} that each run until "
+                                     "their own longest lane is done); False = every "
                                      "lane of the batch until the longest is done (same "
                                      "visibility and counters except raster_lanes)",
                                      allowed=(True, False)),
