@@ -186,6 +186,38 @@ def test_deferred_rasterization_is_bit_identical(name, sphere, projection):
     assert w["raster_lanes"] > 2 * e["raster_lanes"]
 
 
+
+@pytest.mark.parametrize("schedule", ["blocks", "full"])
+def test_flush_schedules_are_bit_identical(schedule, monkeypatch, request):
+    """The compact flush picks, per round, the whole batch at once or blocks of sorted
+    lanes (by their estimated cost; with the paper's projection only); forced either way
+    (here with the homogeneous projection) it gives the uncompacted flush's visibility
+    and counters, and lanes no more than it (the whole batch: exactly its)."""
+    import shadowlab.methods.soft_tiled as st
+    if schedule == "blocks":
+        # a fixed step cost of -FLUSH_BLOCK lanes makes the blocks free
+        monkeypatch.setitem(st.FLUSH_STEP_LANES, "homogeneous", -st.FLUSH_BLOCK)
+    else:
+        # one block of the whole batch costs what the whole batch does: a tie, which
+        # goes to the whole batch
+        monkeypatch.setitem(st.FLUSH_STEP_LANES, "homogeneous", 1)
+        monkeypatch.setattr(st, "FLUSH_BLOCK", 1 << 30)
+    st._eval_kernel.cache_clear()
+    request.addfinalizer(st._eval_kernel.cache_clear)   # no patched kernel outlives it
+    scene, gbuf, light, _ = _case("fuzzy", True)
+    common = dict(FAST, face_cull="none", capacity=100)
+    wide = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", compact=False,
+                              **common)
+    forced = sl.compute_shadows(scene, gbuf, light, method="soft_tiled", **common)
+    assert np.array_equal(wide.lit, forced.lit) and (wide.lit < 1).any()
+    w, f = wide.counters, forced.counters
+    for key in set(w) - {"raster_lanes"}:
+        assert np.array_equal(np.asarray(w[key]), np.asarray(f[key])), key
+    if schedule == "full":
+        assert f["raster_lanes"] == w["raster_lanes"]
+    else:
+        assert w["raster_lanes"] > 2 * f["raster_lanes"] >= 2 * f["rasterized_triangles"]
+
 def _smallest_ball(tri):
     """Plain loop: the smallest ball holding the 3 points (a pair's diameter ball when it
     holds the third point, else the circumscribed ball), as (centre, radius)."""

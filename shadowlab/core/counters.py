@@ -169,8 +169,9 @@ COUNTERS: dict[str, Counter] = {c.name: c for c in [
     Counter("csm_false_shadows", "int", "CSM: culled samples that the exact test over every "
             "caster finds lit; must be 0 (-1 when the check is off)"),
     Counter("raster_lanes", "int", "pixel lanes the vectorized rasterizer executed: the sum "
-            "over its steps of the lanes each step ran on (deferred with compact: the flush "
-            "blocks' lanes; rasterized_triangles of them did work)"),
+            "over its steps of the lanes each step ran on (deferred with compact: per round "
+            "the whole batch's or the flush blocks' lanes; rasterized_triangles of them did "
+            "work)"),
     Counter("recorded_pairs", "int", "pixel x triangle pairs the record pass queued for the "
             "rasterizer: those passing the exact quick reject (= rasterized_triangles), or "
             "with record='sphere' those whose bounding sphere meets the pixel's light cone "

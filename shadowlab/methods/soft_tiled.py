@@ -40,7 +40,8 @@ Vectorized JAX: active tiles, sorted by list length, run in batches of 32 (one c
 shape), vectorized over (tiles x 256 pixels). With ``defer`` (default) a batch first runs
 only the per-pixel quick reject over its lists, recording the passing entries as bits,
 then rasterizes just those (per round of 256 entries; with ``compact`` each step runs only
-on the lanes with pairs left, in blocks of 512 lanes); a pixel whose grid is
+on the lanes with pairs left, in blocks of 512 lanes; with the paper's projection
+the whole batch where the pairs are spread evenly); a pixel whose grid is
 empty stops. Option ``record`` picks the record pass's test: the quick reject, the
 triangle's bounding sphere against the pixel's light cone (the flush then runs the quick
 reject), or both. See docs/soft_tiled.md.
@@ -82,6 +83,9 @@ from ..core.result import ShadowResult
 BATCH_TILES = 32        # tiles per eval call (32 x 256 pixels vectorized)
 DEFER_WORDS = 8         # defer=True: 32-slot words of the tile list per round (bits per pixel)
 FLUSH_BLOCK = 512       # compact flush: lanes per block (each runs until its own longest)
+#: compact flush: a rasterizer step's fixed cost in lanes' worth of its per-lane work, per
+#: projection (measured, docs/soft_tiled.md "Flush schedule"); 0: always the blocks
+FLUSH_STEP_LANES = {"paper": 768, "homogeneous": 0}
 #: record="sphere": the kernel widens each bounding sphere by this fraction of the
 #: centre's light-frame offset (|x| + |y| + |z|), which covers the float32 rounding of the
 #: offset, its rotation into the light frame and the cone's sine and cosine (each a few
@@ -485,11 +489,15 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             the batch run until the lane with the most pairs is done. With it, the lanes
             are sorted by their number of pairs (descending) and run in blocks of
             ``FLUSH_BLOCK`` consecutive lanes of that order, one block after the other,
-            each until its own first (largest) lane is done; the blocks after the first
-            empty one are skipped. The kernel therefore holds one copy of the
-            rasterizer step, whatever the batch size. No lane stops before its pairs are
-            done, and a lane's steps do not depend on the others (the grid is an AND of
-            its pairs' keep words), so the words are those of the full run.
+            each until its own first (largest) lane is done (the blocks after the first
+            empty one are skipped). With the paper's projection, whose step is cheap per
+            lane, a round whose pairs are spread evenly runs the whole batch at once
+            instead, where that costs less with a step costing its lanes plus
+            ``FLUSH_STEP_LANES`` (its fixed part, paid 16 times per whole-batch step by
+            512-lane blocks). The kernel holds one copy of the rasterizer step per
+            width, whatever the batch size. No lane stops before its pairs are done, and
+            a lane's steps do not depend on the others (the grid is an AND of its pairs'
+            keep words), so the words are those of the full run.
             With ``record="sphere"`` each popped pair first runs the exact quick reject.
             Returns the words, the rasterized and near-clamp counts of the flush [G, 256]
             (zero unless ``record="sphere"``) and the lanes executed (steps x lanes,
@@ -512,15 +520,6 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                      jnp.zeros(n, jnp.uint32), jnp.zeros(n, jnp.int32),
                      *([jnp.zeros(n, jnp.int32)] * (2 if gated else 0)))
             todo = lane_of(todo)
-            if compact:
-                order = jnp.argsort(-todo, stable=True)
-                data, state = jax.tree_util.tree_map(lambda a: a[..., order], (data, state))
-                ranked = todo[order]
-                block = min(FLUSH_BLOCK, n)
-            else:
-                ranked = jnp.broadcast_to(jnp.max(todo), (n,))
-                block = n
-            assert n % block == 0, (n, block)
 
             def step_on(lanes):
                 def step(_, carry):
@@ -544,34 +543,66 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                             *counts)
                 return step
 
+            def full_width(state):
+                steps = jnp.max(todo)
+                return jax.lax.fori_loop(0, steps, step_on(data), state), n * steps
+
+            block = min(FLUSH_BLOCK, n)
+            assert n % block == 0, (n, block)
             n_blocks = n // block
 
-            def run_block(carry):
-                b, state, executed = carry
-                lo = b * block
+            def in_blocks(args):
+                state, order, ranked = args
+                lanes, state = jax.tree_util.tree_map(lambda a: a[..., order], (data, state))
 
-                def part(a):
-                    return jax.lax.dynamic_slice_in_dim(a, lo, block, axis=a.ndim - 1)
+                def run_block(carry):
+                    b, state, executed = carry
+                    lo = b * block
 
-                # ranked is descending: the block's first lane has the most pairs
-                steps = ranked[lo]
-                done = jax.lax.fori_loop(0, steps, step_on(jax.tree_util.tree_map(part, data)),
-                                         jax.tree_util.tree_map(part, state))
-                state = jax.tree_util.tree_map(
-                    lambda a, d: jax.lax.dynamic_update_slice_in_dim(a, d, lo, a.ndim - 1),
-                    state, done)
-                return b + 1, state, executed + block * steps
+                    def part(a):
+                        return jax.lax.dynamic_slice_in_dim(a, lo, block, axis=a.ndim - 1)
 
-            def more_blocks(carry):
-                b = carry[0]
-                return (b < n_blocks) & (ranked[jnp.minimum(b, n_blocks - 1) * block] > 0)
+                    # ranked is descending: the block's first lane has the most pairs
+                    steps = ranked[lo]
+                    done = jax.lax.fori_loop(0, steps,
+                                             step_on(jax.tree_util.tree_map(part, lanes)),
+                                             jax.tree_util.tree_map(part, state))
+                    state = jax.tree_util.tree_map(
+                        lambda a, d: jax.lax.dynamic_update_slice_in_dim(a, d, lo, a.ndim - 1),
+                        state, done)
+                    return b + 1, state, executed + block * steps
 
-            _, state, executed = jax.lax.while_loop(more_blocks, run_block,
-                                                    (jnp.int32(0), state, jnp.int32(0)))
-            out, out_counts = list(state[0]), list(state[4:])
+                def more_blocks(carry):
+                    b = carry[0]
+                    return (b < n_blocks) & (ranked[jnp.minimum(b, n_blocks - 1) * block] > 0)
+
+                _, state, executed = jax.lax.while_loop(more_blocks, run_block,
+                                                        (jnp.int32(0), state, jnp.int32(0)))
+                # back to lane order: the words and counts only (the rest is not read)
+                state = list(state)
+                for i in [0, *range(4, len(state))]:
+                    state[i] = jax.tree_util.tree_map(
+                        lambda o: jnp.zeros_like(o).at[order].set(o), state[i])
+                return tuple(state), executed
+
+            step_lanes = FLUSH_STEP_LANES[projection]
             if compact:
-                out, out_counts = [[jnp.zeros_like(o).at[order].set(o) for o in group]
-                                   for group in (out, out_counts)]
+                order = jnp.argsort(-todo, stable=True)
+                ranked = todo[order]
+                args = (state, order, ranked)
+                if step_lanes == 0:
+                    state, executed = in_blocks(args)
+                else:
+                    # blocks only where their steps cost less than the whole batch's, a
+                    # step costing its lanes plus ``step_lanes``
+                    whole = ranked[0].astype(jnp.float32) * (n + step_lanes)
+                    split = (jnp.sum(ranked[::block]).astype(jnp.float32)
+                             * (block + step_lanes))
+                    state, executed = jax.lax.cond(whole <= split, lambda a: full_width(a[0]),
+                                                   in_blocks, args)
+            else:
+                state, executed = full_width(state)
+            out, out_counts = list(state[0]), list(state[4:])
             if not gated:
                 out_counts = [jnp.zeros(n, jnp.int32)] * 2
             return ([o.reshape(shape) for o in out], [c.reshape(shape) for c in out_counts],
@@ -979,7 +1010,9 @@ SOFT_DECLARATION = {
                    "compact": Option(True, "defer: each flush step runs only on the lanes "
                                      "with recorded pairs left (lanes sorted by their pair "
                                      f"count, blocks of {FLUSH_BLOCK} that each run until "
-                                     "their own longest lane is done); False = every "
+                                     "their own longest lane is done; with the paper's "
+                                     "projection the whole batch where the pairs are "
+                                     "spread evenly); False = every "
                                      "lane of the batch until the longest is done (same "
                                      "visibility and counters except raster_lanes)",
                                      allowed=(True, False)),
