@@ -564,8 +564,9 @@ def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> 
     exactly one volume, the one merged in the previous round at the slot it lost (whose
     children are still empty), so a round is one vectorized classification against that
     volume's four planes. Between rounds the host compacts the pending triangles into
-    the smallest of 2 sizes per octave that holds them (timed as ``build_compact``), so
-    the work follows the number of pending triangles, not the capacity.
+    the smallest of 2 sizes per octave, at least 1,024 lanes, that holds them (timed as
+    ``build_compact``), so the work follows the number of pending triangles, not the
+    capacity (smaller sizes would each compile a kernel for rounds of microseconds).
     """
     import contextlib
     stage = (timer.stage if timer is not None
@@ -610,7 +611,7 @@ def build_parallel(inp: BuildInput, wedge: str = "conservative", timer=None) -> 
     while len(rank):
         with stage("build_compact"):
             live = len(rank)
-            b = bucket(live, minimum=192, steps=2)      # 2 sizes per octave, >= 192
+            b = bucket(live, minimum=1024, steps=2)     # 2 sizes per octave, >= 1024
             lanes = {"rank": pad(rank, b), "cur": pad(cur, b), "last": pad(last, b, -1),
                      "steps": pad(steps, b)}
             lanes = {k: jnp.asarray(v) for k, v in lanes.items()}
