@@ -13,6 +13,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..core.numerics import opaque_multiplier, opaque_zero, ordered_dot, ordered_sum
 
@@ -20,7 +21,6 @@ _ADJACENT = ((0, 2), (0, 1), (1, 2))     # edge planes meeting at vertex 0, 1, 2
 _MARGIN_ULPS = 64
 
 
-@functools.partial(jax.jit, static_argnames=("extra", "p00", "p11"))
 def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: float,
                             p11: float):
     """Planes in (nx, ny, q, 1) space and their rounding tolerances.
@@ -60,6 +60,16 @@ def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: fl
         g: [T, 7, 4] rows 0-2 edges, 3 cap, 4-6 extra. tol: [T, 7] tolerances
         (values in units of world distance / w).
     """
+    # the reciprocals rounded once, on the host; passed as data, so that one compiled
+    # program serves every camera
+    recip = jnp.asarray(np.array([1.0 / p00, 1.0 / p11]).astype(planes.dtype))
+    return _post_perspective_planes(planes, inv_view, qmax, pmax, recip, extra=extra)
+
+
+@functools.partial(jax.jit, static_argnames=("extra",))
+def _post_perspective_planes(planes, inv_view, qmax, pmax, recip, *, extra: str):
+    """:func:`post_perspective_planes` with recip = (1 / p00, 1 / p11) [2] rounded to
+    the working dtype."""
     dtype = planes.dtype
     u = float(jnp.finfo(dtype).eps)
     mul = opaque_multiplier(opaque_zero(inv_view))
@@ -67,8 +77,7 @@ def post_perspective_planes(planes, inv_view, qmax, pmax, *, extra: str, p00: fl
     t = planes.shape[0]
     p = [[planes[:, i, k] for k in range(4)] for i in range(4)]     # p[plane][coef]: [T]
     m = [[inv_view[i, j] for j in range(4)] for i in range(4)]
-    r00 = jnp.asarray(1.0 / p00, dtype)         # the reciprocals rounded once, on the host
-    r11 = jnp.asarray(1.0 / p11, dtype)
+    r00, r11 = recip[0], recip[1]
     q4 = mul(qmax, jnp.asarray(4 * u, dtype))
     wv, g, inner, slack = [], [], [], []
     for i in range(4):
