@@ -186,7 +186,6 @@ def test_deferred_rasterization_is_bit_identical(name, sphere, projection):
     assert w["raster_lanes"] > 2 * e["raster_lanes"]
 
 
-
 @pytest.mark.parametrize("schedule", ["blocks", "full"])
 def test_flush_schedules_are_bit_identical(schedule, monkeypatch, request):
     """The compact flush picks, per round, the whole batch at once or blocks of sorted
@@ -217,6 +216,7 @@ def test_flush_schedules_are_bit_identical(schedule, monkeypatch, request):
         assert f["raster_lanes"] == w["raster_lanes"]
     else:
         assert w["raster_lanes"] > 2 * f["raster_lanes"] >= 2 * f["rasterized_triangles"]
+
 
 def _smallest_ball(tri):
     """Plain loop: the smallest ball holding the 3 points (a pair's diameter ball when it
