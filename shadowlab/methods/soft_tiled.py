@@ -493,8 +493,8 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
             empty one are skipped). With the paper's projection, whose step is cheap per
             lane, a round whose pairs are spread evenly runs the whole batch at once
             instead, where that costs less with a step costing its lanes plus
-            ``FLUSH_STEP_LANES`` (its fixed part, paid 16 times per whole-batch step by
-            512-lane blocks). The kernel holds one copy of the rasterizer step per
+            ``FLUSH_STEP_LANES`` (its fixed part, which the blocks pay n / 512 times per
+            step of the whole batch). The kernel holds one copy of the rasterizer step per
             width, whatever the batch size. No lane stops before its pairs are done, and
             a lane's steps do not depend on the others (the grid is an AND of its pairs'
             keep words), so the words are those of the full run.
@@ -579,11 +579,10 @@ def _eval_kernel(grid_name: str, chunk: int, projection: str, sphere: bool, hori
                 _, state, executed = jax.lax.while_loop(more_blocks, run_block,
                                                         (jnp.int32(0), state, jnp.int32(0)))
                 # back to lane order: the words and counts only (the rest is not read)
-                state = list(state)
-                for i in [0, *range(4, len(state))]:
-                    state[i] = jax.tree_util.tree_map(
-                        lambda o: jnp.zeros_like(o).at[order].set(o), state[i])
-                return tuple(state), executed
+                def unsort(o):
+                    return jnp.zeros_like(o).at[order].set(o)
+                return ([unsort(w) for w in state[0]], *state[1:4],
+                        *map(unsort, state[4:])), executed
 
             step_lanes = FLUSH_STEP_LANES[projection]
             if compact:
