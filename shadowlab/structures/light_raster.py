@@ -81,9 +81,16 @@ def homogeneous_matrix(face: LightFace) -> np.ndarray:
 
 
 def face_depth(face: LightFace, depth: np.ndarray) -> np.ndarray:
-    """float64 [...]: ``delta`` of points at view-axis ``depth`` [...] (world units)."""
+    """float64 [...]: ``delta`` of points at view-axis ``depth`` [...] (world units).
+
+    On a perspective face a point on the light's plane (depth 0) has an infinite delta;
+    the callers treat it (a receiver cut that reaches the light), so no warning is
+    raised for it."""
     depth = np.asarray(depth, dtype=np.float64)
-    return depth if face.orthographic else -face.near / depth
+    if face.orthographic:
+        return depth
+    with np.errstate(divide="ignore"):
+        return -face.near / depth
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
