@@ -29,6 +29,7 @@ N_ROWS = sum(32 ** k for k in range(D))
 class RangeTests:
     levels: int = D
     counters = ("tests", "accepts", "rejects")
+    frontier_per_job = 1                # the smallest first bucket: the retry path runs
 
     def prepare(self, data):
         return data
@@ -178,6 +179,41 @@ def test_engine_visits_the_same_nodes_as_a_python_loop(passes, expand_level, wav
     pushed = np.array(want["pushed"], np.int64).reshape(-1, 2)
     np.testing.assert_array_equal(got.pass2_items, pushed[:, 0])
     np.testing.assert_array_equal(got.pass2_nodes, pushed[:, 1])
+
+
+def test_the_first_bucket_follows_the_tests_frontier_prior(monkeypatch):
+    """With ``frontier_per_job`` large enough for the peak frontier the first try is the
+    only one (one kernel, that bucket remembered); with 1 the same problem retries, and
+    both give the Python loop's results."""
+    cells, masks, qa, qb, may = _problem()
+    want = _reference(masks, qa, qb, may, passes=1, expand_level=1, wave=None, prune=False)
+    jobs = len(qa)
+    assert want["frontier_max"] > tv.MIN_FRONTIER
+
+    @dataclasses.dataclass(frozen=True)
+    class PriorTests(RangeTests):
+        frontier_per_job = -(-want["frontier_max"] // jobs)
+
+    caps = []
+    kernel = tv.pass_kernel
+    monkeypatch.setattr(tv, "pass_kernel", lambda *a: caps.append(a[4]) or kernel(*a))
+    for spec, retried in ((PriorTests(), False), (RangeTests(), True)):
+        caps.clear()
+        buckets = {}
+        data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
+                "qa": jnp.asarray(qa), "qb": jnp.asarray(qb),
+                "may_accept": jnp.asarray(may)}
+        got = tv.traverse(spec, data, data["rows"], np.arange(jobs, dtype=np.int32),
+                          jnp.zeros((N_ROWS, 32), bool),
+                          (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
+                          passes=1, expand_level=1, wave=None, prune=False, buckets=buckets)
+        first = tv.bucket(spec.frontier_per_job * jobs, minimum=tv.MIN_FRONTIER)
+        assert caps[0] == first and (len(caps) > 1) == retried
+        assert buckets[(spec, False, 0, D + 1)] == caps[-1] >= want["frontier_max"]
+        np.testing.assert_array_equal(got.counts, want["counts"])
+        assert got.frontier_max == want["frontier_max"]
+        visits, _ = jax.device_get(got.leaf_state)
+        np.testing.assert_array_equal(visits, want["visits"])
 
 
 @pytest.fixture

@@ -29,7 +29,10 @@ last level the surviving entries are leaf jobs, handed to ``tests.leaves`` in ch
 
 Capacity: a level whose frontier would exceed ``cap`` records its true size in
 ``need`` (the extra entries are dropped and the state is not used); :func:`run_pass`
-then retries with a bigger bucket (4x at least), so nothing is ever truncated silently.
+then retries with a bigger bucket (2x at least), so nothing is ever truncated silently.
+The first try is sized from the tests' ``frontier_per_job`` (the peak frontier a job
+typically grows to, a prior that only sets the first bucket), so that a scene's first
+call usually needs no retry, which would cost a compile and a partial run.
 A bucket is not free beyond ``n``: every level clears and fills bucket-sized arrays
 (the children's words and prefix sums, the next frontier), so a bucket 32x too large
 made ``ptsv``'s traversal 3.6x slower (sphere_grid 99k after fuzzy 100k in one process,
@@ -80,10 +83,14 @@ class NodeTests(Protocol):
     Attributes:
         levels: depth D of the tree (leaves at level D).
         counters: names of the K counters that :meth:`children` increments.
+        frontier_per_job: the first frontier bucket holds this many entries per job of
+            a wave (a performance prior: a larger frontier is retried, a smaller one
+            leaves part of the bucket unused).
     """
 
     levels: int
     counters: tuple[str, ...]
+    frontier_per_job: int
 
     def prepare(self, data: Any) -> Any:
         """Turn the traced ``data`` pytree into a context, once per kernel call."""
@@ -301,7 +308,9 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
     total = max(n_jobs, 1)
     wave_size = min(wave, total) if wave else total
     key = (tests, prune, level0, stop)
-    cap = max(buckets.get(key, 0), bucket(wave_size, minimum=MIN_FRONTIER))
+    first = max(bucket(wave_size, minimum=MIN_FRONTIER),
+                min(bucket(tests.frontier_per_job * wave_size), MAX_FRONTIER))
+    cap = max(buckets.get(key, 0), first)
     remedy = "turn on the `prune` option with a smaller `wave`, or render fewer samples"
     while True:
         # a level's children are counted by int32 prefix sums (up to 32 per entry), and the
@@ -326,11 +335,11 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
         out_n = int(wide_total(st["out_n"]))
         if need.max() <= cap and out_n <= out_cap:
             break
-        # counts below a truncated level are underestimates: grow by 4x at least, but not
+        # counts below a truncated level are underestimates: grow by 2x at least, but not
         # past the largest frontier whose children int32 counts (then only as needed)
         if need.max() > cap:
             want = bucket(int(need.max()), minimum=MIN_FRONTIER)
-            cap = want if want > MAX_FRONTIER else min(max(want, 4 * cap), MAX_FRONTIER)
+            cap = want if want > MAX_FRONTIER else min(max(want, 2 * cap), MAX_FRONTIER)
         if out_n > out_cap:
             out_cap = bucket(out_n, minimum=MIN_FRONTIER)
     buckets[key] = cap

@@ -216,6 +216,11 @@ def _leaf_chunk(cfg, a, tri, leaf, ok, tile_shadow, tile_tests):
 # smallest triangle / sample buckets: small scenes and images share compiled kernels
 MIN_TRIANGLES = 2048
 MIN_SAMPLES = 4096
+# the traversal's first frontier bucket, in entries per job (``frontier_per_job``): the
+# peak frontier of a default frame measured 3.5-12x its jobs for the cluster tree and
+# 6.4-23x for PTSV's tile tree on the procedural scenes at 256x256, 2.8-4.2x and 6.1-8.6x
+# on sphere_grid at 99k and 1M triangles at 1024x1024 (docs/clustered_ptsv.md)
+FRONTIER_PER_JOB = {"cluster": 4, "ptsv": 8}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -234,6 +239,8 @@ class PlaneNodeTests:
     prune: bool
     cluster_only: bool
     bias_reject: bool
+    # a bucket prior only: the same kernels whatever its value
+    frontier_per_job: int = dataclasses.field(default=4, compare=False)
 
     counters = ("node_tests", "trivial_accepts", "trivial_rejects", "extra_plane_rejects")
 
@@ -436,7 +443,8 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             accepted = jnp.zeros((level_offsets(tree)[1], 32), bool)
             p_tiles = tree.tiles_x * tree.tiles_y
             tests_spec = PlaneNodeTests(shape, axes, storage, extra != "none", bool(prune),
-                                        leaf_samples == "cluster", bool(bias_reject))
+                                        leaf_samples == "cluster", bool(bias_reject),
+                                        FRONTIER_PER_JOB[kind])
             run = traverse(tests_spec, (params, arrays), arrays["off"]["masks"], casters,
                            accepted, (jnp.zeros((p_tiles, tree.tile_pixels), bool),
                                       jnp.zeros((p_tiles, tree.tile_pixels), jnp.int32)),
