@@ -61,6 +61,22 @@ def test_lights():
         SphereLight(position=(0, 1, 0), radius=0)
 
 
+@pytest.mark.parametrize("shape,dtype", [((1000, 3), np.float64), ((7, 5, 3), np.float32),
+                                         ((3,), np.float64), ((0, 3), np.float64)])
+def test_point_light_directions_equal_the_row_wise_formula(shape, dtype):
+    """``to_light`` works on coordinate columns; its bits are those of the row-wise
+    d / max(|d|, 1e-300) with |d| = sqrt((d0^2 + d1^2) + d2^2) in float64, far from the
+    origin too."""
+    light = PointLight((3.5, -2.0, 1e5 + 0.3))
+    points = (np.random.default_rng(1).normal(size=shape) * 1e3).astype(dtype)
+    d = light.position - points.astype(np.float64)
+    dist = np.sqrt(np.sum(d * d, axis=-1))          # a length-3 sum: sequential order
+    got, got_dist = light.to_light(points)
+    assert got.dtype == np.float64 and got.shape == shape
+    np.testing.assert_array_equal(got_dist, dist)
+    np.testing.assert_array_equal(got, d / np.maximum(dist, 1e-300)[..., None])
+
+
 def test_animation_samples_key_frames_evenly():
     cam = Camera(eye=(0, 0, 3), target=(0, 0, 0), resolution=(4, 4))
     anim = Animation(cam, PointLight((0, 5, 0)), frames=5,

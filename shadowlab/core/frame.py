@@ -205,13 +205,18 @@ class Samples:
     def count(self) -> int:
         return int(self.index.size)
 
+    @property
+    def capacity(self) -> int:
+        """The default padded length of per-sample arrays: a bucket of ``count``."""
+        return bucket(self.count, steps=8)
+
     def padded_position(self, dtype, capacity: int | None = None) -> np.ndarray:
         """[capacity, 3] positions in ``dtype``; rows past ``count`` are zeros."""
-        return pad(self.position, capacity or bucket(self.count, steps=8), dtype=dtype)
+        return pad(self.position, capacity or self.capacity, dtype=dtype)
 
     def padded(self, values: np.ndarray, dtype, capacity: int | None = None) -> np.ndarray:
         """``values`` [count, ...] zero-padded to [capacity, ...] in ``dtype``."""
-        return pad(values, capacity or bucket(self.count, steps=8), dtype=dtype)
+        return pad(values, capacity or self.capacity, dtype=dtype)
 
     def tile_order(self, tile: int) -> np.ndarray:
         """int64 [S]: the samples reordered by ``tile`` x ``tile`` pixel tiles (tiles

@@ -237,15 +237,21 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
         # evaluation points
         with timer.stage("bias"):
             eps = cap_bias(scene, shadow_eps)
-            p = samples.position
+            p, n = samples.position, samples.normal
             l_hat, dist = hard_light(light).to_light(p)
-            cut = eps / np.maximum(np.einsum("ij,ij->i", samples.normal, l_hat), 1e-6)
+            # per coordinate column, in the order of einsum("ij,ij->i", n, l_hat) and of
+            # the row-wise p + cut l_hat - eye (the same bits, no [S, 3] temporaries)
+            cut = eps / np.maximum(n[:, 0] * l_hat[:, 0] + n[:, 1] * l_hat[:, 1]
+                                   + n[:, 2] * l_hat[:, 2], 1e-6)
             beyond_light = cut >= dist if point else np.zeros(samples.count, bool)
             at_q = bias in ("receiver", "receiver_visible")
-            x = p + cut[:, None] * l_hat if at_q else p
-            q_rel = jnp.asarray(samples.padded(x - eye, dtype))
+            q_pad = np.zeros((samples.capacity, 3), dtype)
+            for k in range(3):
+                q_pad[: samples.count, k] = ((p[:, k] + cut * l_hat[:, k]) if at_q
+                                             else p[:, k]) - eye[k]
+            q_rel = jnp.asarray(q_pad)
         zero = opaque_zero(light_j, jnp.int32)
-        q_host = np.asarray(q_rel)[: samples.count]
+        q_host = q_pad[: samples.count]
         basis = cam.basis()
         eps_w = float(np.finfo(dtype).eps)
         clipped_sides = 0
