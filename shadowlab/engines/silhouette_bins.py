@@ -883,7 +883,8 @@ def batch_arrays(grid: SampleGrid, bins: ScreenBins):
     ``BATCH * BLOCK / grid.block`` (so a batch's loop count is close to each member's,
     and a batch has ``BATCH * BLOCK`` lanes at any block size), capacities bucketed to
     limit recompilation. A list longer than ``max(SPLIT_MIN, SPLIT_OVER_MEAN x mean)``
-    runs as several blocks of the same samples, each on one part (:func:`unbatch` sums them).
+    runs as several blocks of the same samples, each on one part (the binned kernels sum
+    them, ``engines.silhouette_stencil._binned_loop``).
 
     Returns:
         (blocks int32 [C, N] (the padding block: the last, all zeros), start int32
@@ -912,29 +913,3 @@ def batch_arrays(grid: SampleGrid, bins: ScreenBins):
     entries = pad(bins.entries, bucket(len(bins.entries), steps=8), dtype=np.int32)
     return (blocks.reshape(n_batches, per_batch), st.reshape(n_batches, per_batch), ln,
             ln.max(axis=1), entries)
-
-
-def unbatch(grid: SampleGrid, blocks: np.ndarray, *outs) -> list[np.ndarray]:
-    """Per-sample int64 values [S] from each binned kernel output [C, N, B] of ``outs``
-    (blocks int32 [C, N]: the block of each lane group, :func:`batch_arrays`).
-
-    Each block's lanes are read from one of its places (a gather), and the other parts
-    of a split list are added to them; padding entries (the zero block) are dropped.
-    """
-    b = grid.block
-    n_real = len(grid.block_cell)
-    blocks = np.asarray(blocks, np.int64).reshape(-1)
-    place = np.arange(len(blocks))
-    where = np.zeros(n_real + 1, np.int64)
-    where[blocks] = place                   # one place per block (every block has one)
-    extra = place[(where[blocks] != place) & (blocks < n_real)]
-    extra_lane = (blocks[extra, None] * b + np.arange(b)).reshape(-1)
-    result = []
-    for out in outs:
-        lanes = np.asarray(out).reshape(len(blocks), b)
-        per_block = lanes[where].astype(np.int64).reshape(-1)
-        if len(extra):      # float64 sums of int32 counts: exact below 2^53
-            per_block += np.bincount(extra_lane, weights=lanes[extra].reshape(-1),
-                                     minlength=len(per_block)).astype(np.int64)
-        result.append(per_block[grid.slot])
-    return result

@@ -139,8 +139,9 @@ def side_kernel(chunk: int, zfail: bool):
     return run
 
 
-def _binned_loop(q, blocks, start, length, steps, entries, sentinel, crossings):
-    """Sum ``crossings(qv, k)`` over per-block lists: (stencil, updates) int32 [C, N, B].
+def _binned_loop(q, blocks, start, length, steps, entries, sentinel, crossings, slot):
+    """Sum ``crossings(qv, k)`` over per-block lists: (stencil, updates) int32 [S'] per
+    sample.
 
     q [Nb, B, 3]: blocks of B samples; blocks int32 [C, N]: C batches of N of them
     (the padding block repeated: its results are dropped); the samples of a block share
@@ -148,7 +149,9 @@ def _binned_loop(q, blocks, start, length, steps, entries, sentinel, crossings):
     int32 [E] primitive indices), so each step reads one primitive per block (k int32
     [N]) and tests it against the block's B samples. steps int32 [C]: the longest list
     of each batch (the batch loops that often; shorter lists read ``sentinel``, a row
-    that must add nothing).
+    that must add nothing). A block that appears several times (a split list, one part
+    each) gets the sum of its parts. slot int32 [S']: each sample's place in the blocks
+    (block * B + lane, the grid's ``slot``; padding entries read any place).
     """
     last = entries.shape[0] - 1
 
@@ -165,7 +168,15 @@ def _binned_loop(q, blocks, start, length, steps, entries, sentinel, crossings):
         zeros = jnp.zeros(qb.shape[:2], jnp.int32)
         return jax.lax.fori_loop(0, n, body, (zeros, zeros))
 
-    return jax.lax.map(batch, (blocks, start, length, steps))
+    lanes = jax.lax.map(batch, (blocks, start, length, steps))
+    rows = blocks.reshape(-1)
+
+    def per_sample(x):          # integer sums: the parts' order does not matter
+        per_block = jnp.zeros(q.shape[:2], jnp.int32).at[rows].add(
+            x.reshape(-1, q.shape[1]), mode="drop")
+        return per_block.reshape(-1)[slot]
+
+    return tuple(per_sample(x) for x in lanes)
 
 
 def _columns(x, k):
@@ -175,17 +186,19 @@ def _columns(x, k):
 
 @functools.lru_cache(maxsize=None)
 def binned_side_kernel(zfail: bool):
-    """Jitted ``run(q, blocks, start, length, steps, entries, table, m, weight, zero)``
-    -> (stencil, updates) int32 [C, N, B]: :func:`side_kernel` over the per-block side
-    lists of :func:`_binned_loop` (the last table row is the sentinel: m = weight = 0)."""
+    """Jitted ``run(q, blocks, start, length, steps, entries, table, m, weight, zero,
+    slot)`` -> (stencil, updates) int32 [S'] per sample: :func:`side_kernel` over the
+    per-block side lists of :func:`_binned_loop` (the last table row is the sentinel:
+    m = weight = 0)."""
     @jax.jit
-    def run(q, blocks, start, length, steps, entries, table, m, weight, zero):
+    def run(q, blocks, start, length, steps, entries, table, m, weight, zero, slot):
         mul = opaque_multiplier(zero)
 
         def crossings(qv, k):
             return _side_crossing(qv, _columns(table, k), m[k][:, None], weight[k][:, None],
                                   zfail, mul)
-        return _binned_loop(q, blocks, start, length, steps, entries, table.shape[0] - 1, crossings)
+        return _binned_loop(q, blocks, start, length, steps, entries, table.shape[0] - 1,
+                            crossings, slot)
     return run
 
 
@@ -303,17 +316,18 @@ def cap_kernel(chunk: int, span: str, back_caps: bool):
 
 @functools.lru_cache(maxsize=None)
 def binned_cap_kernel(span: str, back_caps: bool):
-    """Jitted ``run(q, blocks, start, length, steps, entries, table, sign, zero)``
-    -> (stencil, updates) int32 [C, N, B]: :func:`cap_kernel` over the per-block caster
-    lists of :func:`_binned_loop` (the last caster row is the sentinel: sign 0)."""
+    """Jitted ``run(q, blocks, start, length, steps, entries, table, sign, zero, slot)``
+    -> (stencil, updates) int32 [S'] per sample: :func:`cap_kernel` over the per-block
+    caster lists of :func:`_binned_loop` (the last caster row is the sentinel: sign 0)."""
     _check_span(span)
 
     @jax.jit
-    def run(q, blocks, start, length, steps, entries, table, sign, zero):
+    def run(q, blocks, start, length, steps, entries, table, sign, zero, slot):
         mul = opaque_multiplier(zero)
 
         def crossings(qv, k):
             return _cap_crossings(qv, _columns(table, k), sign[k][:, None], span,
                                   back_caps, mul)
-        return _binned_loop(q, blocks, start, length, steps, entries, table.shape[0] - 1, crossings)
+        return _binned_loop(q, blocks, start, length, steps, entries, table.shape[0] - 1,
+                            crossings, slot)
     return run

@@ -39,8 +39,7 @@ from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
 from ..engines.silhouette_bins import (batch_arrays, cap_shapes, clip_fins, farthest_depth,
-                                      nearest_depth, sample_grid, screen_bins, side_shapes,
-                                      unbatch)
+                                      nearest_depth, sample_grid, screen_bins, side_shapes)
 from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
                                           cap_table, edge_table, side_kernel, vertex_terms)
 from ..geometry.caster_culling import front_face_culled
@@ -259,6 +258,7 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             with timer.stage("stencil_bins"):
                 grid = sample_grid(q_host, basis, samples.shape)
                 q_blocks = jnp.asarray(grid.q)
+                slot = jnp.asarray(samples.padded(grid.slot, np.int32))
         if binned and len(drawn):
             with timer.stage("stencil_bins"):
                 ends = [verts[ev[adj.record_edge[drawn], k]] for k in range(2)]
@@ -272,8 +272,8 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                 args = batch_arrays(grid, sb)
             sten, upd = timer.run("stencil", binned_side_kernel(zfail), q_blocks,
                                   *map(jnp.asarray, args), jnp.asarray(table),
-                                  jnp.asarray(m_pad), jnp.asarray(w_pad), zero)
-            sten, upd = unbatch(grid, args[0], sten, upd)
+                                  jnp.asarray(m_pad), jnp.asarray(w_pad), zero, slot)
+            sten, upd = (np.asarray(x)[: samples.count].astype(np.int64) for x in (sten, upd))
             side_tests = sb.tests
         else:
             sten, upd = timer.run("stencil", side_kernel(chunk, zfail), q_rel,
@@ -321,8 +321,8 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                     sb = screen_bins(grid, shapes, eps_w, basis, near, far)
                     args = batch_arrays(grid, sb)
                 cs, cu = timer.run("caps", binned_cap_kernel(span, back), q_blocks,
-                                   *map(jnp.asarray, args), rows, signs, zero)
-                cs, cu = unbatch(grid, args[0], cs, cu)
+                                   *map(jnp.asarray, args), rows, signs, zero, slot)
+                cs, cu = (np.asarray(x)[: samples.count].astype(np.int64) for x in (cs, cu))
                 cap_tests += sb.tests
             else:
                 cs, cu = timer.run("caps", cap_kernel(chunk, span, back), q_rel, rows,
