@@ -137,12 +137,15 @@ def _reference(masks, qa, qb, may, *, passes, expand_level, wave, prune):
                 iters1=iters1, iters2=iters2, pushed=pushed, **stats)
 
 
-def _traverse(qa, qb, masks, may, passes, expand_level, wave, prune, buckets=None):
-    """The engine on the range problem, from an empty accepted set and leaf state (and
-    the smallest buckets unless ``buckets`` remembers others)."""
+def _traverse(qa, qb, masks, may, passes, expand_level, wave, prune, buckets=None,
+              tests=None):
+    """The engine on the range problem (``tests``: RangeTests() by default), from an
+    empty accepted set and leaf state (and the smallest buckets unless ``buckets``
+    remembers others)."""
     data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
             "qa": jnp.asarray(qa), "qb": jnp.asarray(qb), "may_accept": jnp.asarray(may)}
-    return tv.traverse(RangeTests(), data, data["rows"], np.arange(len(qa), dtype=np.int32),
+    return tv.traverse(RangeTests() if tests is None else tests, data, data["rows"],
+                       np.arange(len(qa), dtype=np.int32),
                        jnp.zeros((N_ROWS, 32), bool),
                        (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
                        passes=passes, expand_level=expand_level, wave=wave, prune=prune,
@@ -200,13 +203,7 @@ def test_the_first_bucket_follows_the_tests_frontier_prior(monkeypatch):
     for spec, retried in ((PriorTests(), False), (RangeTests(), True)):
         caps.clear()
         buckets = {}
-        data = {"rows": jnp.asarray(ROWS, jnp.int32), "masks": jnp.asarray(masks),
-                "qa": jnp.asarray(qa), "qb": jnp.asarray(qb),
-                "may_accept": jnp.asarray(may)}
-        got = tv.traverse(spec, data, data["rows"], np.arange(jobs, dtype=np.int32),
-                          jnp.zeros((N_ROWS, 32), bool),
-                          (jnp.zeros(LEAVES, jnp.int32), jnp.zeros(LEAVES, jnp.int32)),
-                          passes=1, expand_level=1, wave=None, prune=False, buckets=buckets)
+        got = _traverse(qa, qb, masks, may, 1, 1, None, False, buckets, tests=spec)
         first = tv.bucket(spec.frontier_per_job * jobs, minimum=tv.MIN_FRONTIER)
         assert caps[0] == first and (len(caps) > 1) == retried
         assert buckets[(spec, False, 0, D + 1)] == caps[-1] >= want["frontier_max"]
