@@ -65,8 +65,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..core.capacity import (WIDE_LOW_BITS, bucket, check_int32, wide_add, wide_min,
-                             wide_total)
+from ..core.capacity import (WIDE_LOW_BITS, bucket, check_int32, retry_on_overflow,
+                             wide_add, wide_min, wide_total)
 from ..core.timing import compiled
 
 LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop
@@ -294,7 +294,7 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
              wave: int | None, prune: bool, out_cap: int, buckets: dict, timer=None,
              compile_stage: str = "traverse_compile"):
     """One traversal pass (see :func:`pass_kernel`), retried with a bigger frontier
-    bucket until nothing overflows.
+    bucket (or push capacity) until nothing overflows (``core.capacity.retry_on_overflow``).
 
     Args:
         jobs_item, jobs_node: host arrays [n_jobs] (int32 items, uint32 keys at
@@ -310,9 +310,10 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
     key = (tests, prune, level0, stop)
     first = max(bucket(wave_size, minimum=MIN_FRONTIER),
                 min(bucket(tests.frontier_per_job * wave_size), MAX_FRONTIER))
-    cap = max(buckets.get(key, 0), first)
     remedy = "turn on the `prune` option with a smaller `wave`, or render fewer samples"
-    while True:
+
+    def step(caps):
+        cap, out_cap = caps
         # a level's children are counted by int32 prefix sums (up to 32 per entry), and the
         # pushed entries are written at int32 offsets
         check_int32(32 * cap, f"traversal children of a {cap:,}-entry frontier", remedy)
@@ -331,17 +332,17 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
         if timer is not None:
             timer.times[compile_stage] = timer.times.get(compile_stage, 0.0) + dt
         st = exe(*args)
-        need = np.asarray(st["need"])
-        out_n = int(wide_total(st["out_n"]))
-        if need.max() <= cap and out_n <= out_cap:
-            break
+        return st, (int(np.asarray(st["need"]).max()), int(wide_total(st["out_n"])))
+
+    def grow_frontier(need, cap):
         # counts below a truncated level are underestimates: grow by 2x at least, but not
         # past the largest frontier whose children int32 counts (then only as needed)
-        if need.max() > cap:
-            want = bucket(int(need.max()), minimum=MIN_FRONTIER)
-            cap = want if want > MAX_FRONTIER else min(max(want, 2 * cap), MAX_FRONTIER)
-        if out_n > out_cap:
-            out_cap = bucket(out_n, minimum=MIN_FRONTIER)
+        want = bucket(need, minimum=MIN_FRONTIER)
+        return want if want > MAX_FRONTIER else min(max(want, 2 * cap), MAX_FRONTIER)
+
+    st, (cap, out_cap) = retry_on_overflow(
+        step, (max(buckets.get(key, 0), first), out_cap),
+        grow=(grow_frontier, lambda need, cap: bucket(need, minimum=MIN_FRONTIER)))
     buckets[key] = cap
     return st, out_cap
 
