@@ -250,6 +250,23 @@ def test_a_frontier_whose_children_int32_cannot_count_is_refused():
         _traverse(qa, qb, masks, may, 1, 1, None, False, buckets)
 
 
+def test_windowed_search_equals_searchsorted():
+    """The compaction's search of a chunk of ascending slots equals ``searchsorted(...,
+    side="right")`` everywhere: empty entries (equal prefix sums), slots past the total
+    (into the int32-max padding), and a full bucket whose last sum is the total."""
+    rng = np.random.default_rng(3)
+    search = jax.jit(tv._search_right)
+    for _ in range(200):
+        cap = int(rng.choice([8, 64, 4096]))
+        n = int(rng.integers(0, cap + 1))
+        pop = rng.integers(0, 4, n) * (rng.random(n) < 0.6)
+        end = np.full(cap, np.iinfo(np.int32).max, np.int32)
+        end[:n] = np.cumsum(pop)
+        q = (int(rng.integers(0, pop.sum() + 5)) + np.arange(16)).astype(np.int32)
+        np.testing.assert_array_equal(np.asarray(search(jnp.asarray(end), jnp.asarray(q))),
+                                      np.searchsorted(end, q, side="right"))
+
+
 def test_compaction_keeps_entry_major_child_minor_order():
     rng = np.random.default_rng(0)
     cap = 64

@@ -187,7 +187,7 @@ def compact_children(words, end, total, item, node, job):
     def select(i, carry):
         ntri, nnode, njob = carry
         q = i * sc + jnp.arange(sc, dtype=jnp.int32)
-        j = jnp.minimum(jnp.searchsorted(end, q, side="right"), cap - 1).astype(jnp.int32)
+        j = jnp.minimum(_search_right(end, q), cap - 1).astype(jnp.int32)
         r = q - jnp.where(j > 0, end[jnp.maximum(j - 1, 0)], 0)
         w = words[j]
         pos = jnp.zeros(sc, jnp.uint32)
@@ -205,6 +205,28 @@ def compact_children(words, end, total, item, node, job):
     return jax.lax.fori_loop(
         0, (m + sc - 1) // sc, select,
         (jnp.zeros(cap, jnp.int32), jnp.zeros(cap, jnp.uint32), jnp.zeros(cap, jnp.int32)))
+
+
+def _search_right(end, q):
+    """``jnp.searchsorted(end, q, side="right")`` for ascending q [C] (int32, end int32
+    [cap] ascending): the same indices, found in the window between the first and the
+    last query's index. A binary search over the whole array probes memory far apart
+    (cache misses over a frontier of millions of entries); the window of one chunk of
+    output slots spans a few thousand entries, and its search needs bit_length(window)
+    steps instead of log2(cap)."""
+    lo = jnp.searchsorted(end, q[0], side="right").astype(jnp.int32)
+    hi = jnp.searchsorted(end, q[-1], side="right").astype(jnp.int32)
+    last = end.shape[0] - 1
+
+    def halve(_, bounds):               # invariant: the answer lies in [lo, hi]
+        a, b = bounds
+        mid = (a + b) // 2
+        go = end[jnp.minimum(mid, last)] <= q
+        return jnp.where(go, mid + 1, a), jnp.where(go, b, mid)
+
+    steps = 32 - jax.lax.clz(hi - lo)                 # bit_length of the window
+    a, _ = jax.lax.fori_loop(0, steps, halve, (jnp.full(q.shape, lo), jnp.full(q.shape, hi)))
+    return jnp.minimum(a, hi)
 
 
 @functools.lru_cache(maxsize=64)
