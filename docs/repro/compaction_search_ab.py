@@ -1,60 +1,59 @@
-"""compact_children with the windowed search (the working tree's) against the previous
-full-array searchsorted, on a synthetic frontier of 3 M entries (12 % of children set,
-11.5 M outputs) in a 16 M-entry bucket, alternating in one process; also the chunk size.
+"""``compact_children`` of the working tree against that of a base commit, on a
+synthetic frontier of 3 M entries (12 % of children set, 11.5 M outputs) in a 16 M-entry
+bucket, alternating in one process (7 calls each after a compiling one); both must give
+identical outputs, padding slots included.
 
-usage: python docs/repro/compaction_search_ab.py
+usage: python docs/repro/compaction_search_ab.py [BASE]   (default: 371cb3b~1, the
+commit before the windowed search)
 """
-import time, sys, numpy as np, jax, jax.numpy as jnp
-from shadowlab.engines import traversal as tv
-rng = np.random.default_rng(0)
-cap, n, p = 1 << 24, 3_000_000, 0.12
-bits = (rng.random((n, 32)) < p)
-words = np.zeros(cap, np.uint32)
-words[:n] = (bits * (1 << np.arange(32, dtype=np.uint64))).sum(1).astype(np.uint32)
-pop = bits.sum(1)
-end = np.full(cap, np.iinfo(np.int32).max, np.int32); end[:n] = np.cumsum(pop)
-total = int(pop.sum())
-args = [jnp.asarray(words), jnp.asarray(end), jnp.int32(total), jnp.asarray(rng.integers(0, 1000, cap).astype(np.int32)), jnp.asarray(rng.integers(0, 1000, cap).astype(np.uint32)), jnp.zeros(cap, jnp.int32)]
-ref = None
-for sc in (4096, 16384, 65536):
-    tv.SELECT_CHUNK = sc
-    f = jax.jit(tv.compact_children)
-    out = jax.block_until_ready(f(*args))
-    if ref is None: ref = out
-    same = all(np.array_equal(np.asarray(a)[:total], np.asarray(b)[:total]) for a, b in zip(out, ref))
-    ts = []
-    for _ in range(5):
-        t = time.perf_counter(); jax.block_until_ready(f(*args)); ts.append(time.perf_counter() - t)
-    print(sc, f"{np.median(ts)*1e3:.1f} ms", same)
+import subprocess
+import sys
+import time
+import types
 
-def old_compact(words, end, total, item, node, job):
-    cap = item.shape[0]
-    sc = min(cap, 4096)
-    def select(i, carry):
-        ntri, nnode, njob = carry
-        q = i * sc + jnp.arange(sc, dtype=jnp.int32)
-        j = jnp.minimum(jnp.searchsorted(end, q, side="right"), cap - 1).astype(jnp.int32)
-        r = q - jnp.where(j > 0, end[jnp.maximum(j - 1, 0)], 0)
-        w = words[j]
-        pos = jnp.zeros(sc, jnp.uint32)
-        for width in (16, 8, 4, 2, 1):
-            c = jax.lax.population_count((w >> pos) & jnp.uint32((1 << width) - 1))
-            go = r >= c.astype(jnp.int32)
-            r = jnp.where(go, r - c.astype(jnp.int32), r)
-            pos = jnp.where(go, pos + jnp.uint32(width), pos)
-        ntri = jax.lax.dynamic_update_slice_in_dim(ntri, item[j], i * sc, 0)
-        nnode = jax.lax.dynamic_update_slice_in_dim(nnode, (node[j] << 5) | pos, i * sc, 0)
-        njob = jax.lax.dynamic_update_slice_in_dim(njob, job[j], i * sc, 0)
-        return ntri, nnode, njob
-    m = jnp.minimum(total, cap)
-    return jax.lax.fori_loop(0, (m + sc - 1) // sc, select,
-        (jnp.zeros(cap, jnp.int32), jnp.zeros(cap, jnp.uint32), jnp.zeros(cap, jnp.int32)))
-tv.SELECT_CHUNK = 4096
-fo, fn = jax.jit(old_compact), jax.jit(tv.compact_children)
-a, b = jax.block_until_ready(fo(*args)), jax.block_until_ready(fn(*args))
-print("identical full outputs", all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b)))
-to, tn = [], []
-for _ in range(7):
-    t = time.perf_counter(); jax.block_until_ready(fo(*args)); to.append(time.perf_counter() - t)
-    t = time.perf_counter(); jax.block_until_ready(fn(*args)); tn.append(time.perf_counter() - t)
-print("old", np.round(np.array(to) * 1e3), "new", np.round(np.array(tn) * 1e3))
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from shadowlab.engines import traversal as new
+
+
+def module_at(commit: str, path: str, name: str):
+    """The module ``name`` as it was at ``commit`` (its source from git, run in its
+    package so that relative imports resolve to the working tree's)."""
+    source = subprocess.check_output(["git", "show", f"{commit}:{path}"], text=True)
+    mod = types.ModuleType(name)
+    mod.__package__ = name.rpartition(".")[0]
+    sys.modules[name] = mod                 # dataclasses look their module up there
+    exec(compile(source, f"{commit}:{path}", "exec"), mod.__dict__)
+    return mod
+
+
+def main(base: str) -> None:
+    old = module_at(base, "shadowlab/engines/traversal.py", "shadowlab.engines.traversal_base")
+    rng = np.random.default_rng(0)
+    cap, n, p = 1 << 24, 3_000_000, 0.12
+    bits = rng.random((n, 32)) < p
+    words = np.zeros(cap, np.uint32)
+    words[:n] = (bits * (1 << np.arange(32, dtype=np.uint64))).sum(1).astype(np.uint32)
+    pop = bits.sum(1)
+    end = np.full(cap, np.iinfo(np.int32).max, np.int32)
+    end[:n] = np.cumsum(pop)
+    args = [jnp.asarray(words), jnp.asarray(end), jnp.int32(int(pop.sum())),
+            jnp.asarray(rng.integers(0, 1000, cap).astype(np.int32)),
+            jnp.asarray(rng.integers(0, 1000, cap).astype(np.uint32)), jnp.zeros(cap, jnp.int32)]
+    fo, fn = jax.jit(old.compact_children), jax.jit(new.compact_children)
+    a, b = jax.block_until_ready(fo(*args)), jax.block_until_ready(fn(*args))
+    print("outputs", int(pop.sum()), "identical:",
+          all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b)))
+    times = {"base": [], "new": []}
+    for _ in range(7):
+        for arm, f in (("base", fo), ("new", fn)):
+            t = time.perf_counter()
+            jax.block_until_ready(f(*args))
+            times[arm].append(round(1e3 * (time.perf_counter() - t)))
+    print("ms", times)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else "371cb3b~1")
