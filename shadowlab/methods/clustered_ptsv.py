@@ -239,8 +239,8 @@ class PlaneNodeTests:
     prune: bool
     cluster_only: bool
     bias_reject: bool
-    # a bucket prior only: the same kernels whatever its value
-    frontier_per_job: int = dataclasses.field(default=4, compare=False)
+    # a bucket prior only (FRONTIER_PER_JOB): the same kernels whatever its value
+    frontier_per_job: int = dataclasses.field(compare=False)
 
     counters = ("node_tests", "trivial_accepts", "trivial_rejects", "extra_plane_rejects")
 

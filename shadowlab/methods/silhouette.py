@@ -251,6 +251,10 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             q_rel = jnp.asarray(q_pad)
         zero = opaque_zero(light_j, jnp.int32)
         q_host = q_pad[: samples.count]
+
+        def per_sample(x):
+            """int64 [S] host counts of a kernel's padded per-sample output [S']."""
+            return np.asarray(x)[: samples.count].astype(np.int64)
         basis = cam.basis()
         eps_w = float(np.finfo(dtype).eps)
         clipped_sides = 0
@@ -273,15 +277,13 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             sten, upd = timer.run("stencil", binned_side_kernel(zfail), q_blocks,
                                   *map(jnp.asarray, args), jnp.asarray(table),
                                   jnp.asarray(m_pad), jnp.asarray(w_pad), zero, slot)
-            sten, upd = (np.asarray(x)[: samples.count].astype(np.int64) for x in (sten, upd))
             side_tests = sb.tests
         else:
             sten, upd = timer.run("stencil", side_kernel(chunk, zfail), q_rel,
                                   jnp.asarray(table), jnp.asarray(m_pad), jnp.asarray(w_pad),
                                   zero)
-            sten = np.asarray(sten)[: samples.count].astype(np.int64)
-            upd = np.asarray(upd)[: samples.count].astype(np.int64)
             side_tests = samples.count * len(drawn)
+        sten, upd = (per_sample(x) for x in (sten, upd))
         cap_triangles = 0
         # caps: ZFAIL draws them; at the cut point q, the caps between the eye and q
         # (nonzero only where q is hidden) complete ZPASS and the caps at infinity
@@ -322,13 +324,12 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
                     args = batch_arrays(grid, sb)
                 cs, cu = timer.run("caps", binned_cap_kernel(span, back), q_blocks,
                                    *map(jnp.asarray, args), rows, signs, zero, slot)
-                cs, cu = (np.asarray(x)[: samples.count].astype(np.int64) for x in (cs, cu))
                 cap_tests += sb.tests
             else:
                 cs, cu = timer.run("caps", cap_kernel(chunk, span, back), q_rel, rows,
                                    signs, zero)
-                cs, cu = np.asarray(cs)[: samples.count], np.asarray(cu)[: samples.count]
                 cap_tests += samples.count * len(keep)
+            cs, cu = (per_sample(x) for x in (cs, cu))
             # the kernel counts exits; caps crossed before q are entries of the ZPASS
             # count, and the part of the caps at infinity that a true cap would not draw
             sten = sten + factor * cs
