@@ -377,3 +377,143 @@ def test_facet_cuts_in_small_pieces_equal_the_full_passes(monkeypatch, stencil, 
     _assert_same_counts(full, pieces)
     for key in ("side_tests", "cap_tests"):
         assert pieces.counters[key] == whole.counters[key], key
+
+
+def test_plane_depth_cut_keeps_every_side_a_sample_can_cross():
+    """The per-cell plane depth cut equals a plain loop over each cell rectangle's four
+    corners (a plane is kept iff it reaches a depth of at most the cell's limit in
+    front of the eye somewhere over the rectangle, or is not usable), and keeps every
+    plane that some sample of the cell has in front of it along its view ray."""
+    rng = np.random.default_rng(11)
+    s, k = 2500, 60
+    basis = (np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]))
+    depth = rng.uniform(2.0, 6.0, s)
+    q = np.stack([rng.uniform(-1, 1, s) * depth, rng.uniform(-0.7, 0.7, s) * depth, -depth], 1)
+    grid = bins.sample_grid(q, basis, (64, 48), tile=16, block=8)
+    gx, gy = grid.shape
+    # planes through points 1 to 8 deep, c >= 0 (the eye on the negative side)
+    normal = rng.normal(size=(k, 3))
+    point = np.stack([rng.uniform(-2, 2, k), rng.uniform(-2, 2, k), -rng.uniform(1, 8, k)], 1)
+    offset = np.einsum("ij,ij->i", normal, point)
+    normal *= np.where(offset < 0, -1.0, 1.0)[:, None]
+    offset = np.abs(offset)
+    offset[rng.random(k) < 0.1] = np.nan                     # not usable: kept everywhere
+    prim = rng.permutation(k)
+    # every rank in every cell, cells column after column
+    lengths = np.full(grid.cells, k)
+    layout = np.arange(grid.cells).reshape(gy, gx).T.ravel()
+    starts = np.empty(grid.cells, np.int64)
+    starts[layout] = np.arange(grid.cells) * k
+    ranks = np.tile(np.arange(k, dtype=np.int32), grid.cells)
+    got_ranks, got_starts, got_lengths = bins._plane_depth_cut(
+        grid, basis, ranks, starts, lengths, prim, (normal, offset))
+    # the samples' projected positions and each cell's farthest depth
+    u, v, z = q[:, 0] / depth, q[:, 1] / depth, depth
+    limit = np.full(grid.cells, -np.inf)
+    np.maximum.at(limit, grid.cell, z)
+    kept_pairs = 0
+    for c in range(grid.cells):
+        got = set(prim[got_ranks[got_starts[c]:got_starts[c] + got_lengths[c]]])
+        x, y = c % gx, c // gx
+        inside = grid.cell == c
+        us = [grid.lo[0] + (x + e) / grid.scale[0] for e in (0, 1)]
+        vs = [grid.lo[1] + (y + e) / grid.scale[1] for e in (0, 1)]
+        if x == 0:
+            us[0] = u.min()
+        if x == gx - 1:
+            us[1] = u.max()
+        if y == 0:
+            vs[0] = v.min()
+        if y == gy - 1:
+            vs[1] = v.max()
+        for p in range(k):
+            reach = max(normal[p] @ np.array([uu, vv, -1.0]) for uu in us for vv in vs)
+            want = np.isnan(offset[p]) or offset[p] <= limit[c] * reach
+            assert (p in got) == want, (c, p)
+            kept_pairs += want
+            # a sample of the cell that has the plane between itself and the eye
+            s_dot = (normal[p] @ np.stack([u[inside], v[inside], -np.ones(inside.sum())]))
+            with np.errstate(divide="ignore"):
+                z_plane = offset[p] / s_dot
+            if np.any((s_dot > 0) & (z_plane <= z[inside])):
+                assert p in got, (c, p)
+        assert list(got_ranks[got_starts[c]:got_starts[c] + got_lengths[c]]) == sorted(
+            np.flatnonzero(np.isin(prim, list(got))))
+    assert 0 < kept_pairs < grid.cells * k                  # the cut drops some, keeps some
+
+
+def test_plane_depth_cut_tests_fewer_sides_for_the_same_counts(monkeypatch, precision):
+    """ZPASS with the per-cell plane depth cut gives the unbinned passes' per-pixel
+    counts and lit mask with fewer side tests than without it."""
+    scene = sl.load_scene("fuzzy", triangles=2000)
+    view = default_view("fuzzy", scene)
+    gbuf = sl.render_gbuffer(scene, view.camera.replace(resolution=(40, 40)))
+    kwargs = dict(method="silhouette", precision=precision)
+    full = sl.compute_shadows(scene, gbuf, view.light, bins="off", **kwargs)
+    cut = sl.compute_shadows(scene, gbuf, view.light, **kwargs)
+    monkeypatch.setattr(bins, "PLANE_CUT", False)
+    whole = sl.compute_shadows(scene, gbuf, view.light, **kwargs)
+    _assert_same_counts(full, cut)
+    _assert_same_counts(full, whole)
+    assert cut.counters["side_tests"] < whole.counters["side_tests"]
+
+
+def test_side_plane_margins_keep_the_kernels_crossings():
+    """A sample whose view ray meets a side's plane beyond (1 + m) times its depth (m the
+    margin folded into :func:`side_planes`' offset) is not counted as crossing the side
+    by the kernels' own float32 test; the same samples moved beyond the plane are, for
+    most sides (the check can fail). Edges 1 to 1e4 from the eye, 1e-5 to 0.3 of that
+    long; lights 0.1 to 100 times as far, or directional."""
+    import jax.numpy as jnp
+
+    from shadowlab.core.numerics import opaque_multiplier, opaque_zero
+    from shadowlab.engines.silhouette_stencil import _side_crossing, edge_table, vertex_terms
+
+    rng = np.random.default_rng(3)
+    n = 20_000
+    eps = float(np.finfo(np.float32).eps)
+
+    def point(scale):
+        p = rng.normal(size=(n, 3))
+        return p * (scale / np.linalg.norm(p, axis=1))[:, None]
+
+    dist = 10.0 ** rng.uniform(0, 4, n)
+    a = point(dist)
+    a[:, 2] = -np.abs(a[:, 2])                              # in front of the eye (z < 0)
+    b = a + point(dist * 10.0 ** rng.uniform(-5, np.log10(0.3), n))
+    a, b = a.astype(np.float32), b.astype(np.float32)
+    for light in (np.append(point(1.0)[0] * 50.0, 1.0), np.append(point(1.0)[0], 0.0)):
+        light = light.astype(np.float32)
+        a64, b64, l64 = a.astype(np.float64), b.astype(np.float64), light.astype(np.float64)
+        da = l64[3] * a64 - l64[:3]
+        normal, offset = bins.side_planes(a64, b64, l64, eps, 2 * dist.max())
+        use = np.isfinite(offset)
+        # a point X of each fin (between the ends, beyond the edge from the light)
+        s, t = rng.uniform(0.05, 0.95, n), 10.0 ** rng.uniform(-3, 0.5, n)
+        x = a64 + s[:, None] * (b64 - a64) + (t * dist / np.linalg.norm(da, axis=1))[:, None] * da
+        c_full = np.einsum("ij,ij->i", normal, a64)          # the plane's own offset
+        margin = c_full / offset - 1.0
+        front = x[:, 2] < 0
+        verts = jnp.asarray(np.concatenate([a, b]))
+        terms = vertex_terms(verts, jnp.asarray(light))
+        table = edge_table(jnp.asarray(a), jnp.asarray(b), terms[:n], terms[n:],
+                           jnp.asarray(light))
+        mul = opaque_multiplier(opaque_zero(jnp.asarray(light)))
+        row = [table[:, k] for k in range(16)]
+        counted = {}
+        for name, scale in (("before", 1 / (1 + margin) * (1 - 4 * eps)),
+                            ("beyond", 1 + np.maximum(margin, 1e-3))):
+            q = (x * np.where(use, scale, 1.0)[:, None]).astype(np.float32)
+            q64 = q.astype(np.float64)
+            # the plane's depth along q's own (rounded) ray, over q's depth
+            ratio = offset * (1 + margin) / np.einsum("ij,ij->i", normal, q64)
+            ok = use & front & np.isfinite(ratio)
+            if name == "before":
+                ok &= ratio >= 1 + margin
+            ds, _ = _side_crossing([jnp.asarray(q[:, k]) for k in range(3)], row,
+                                   jnp.int32(1), jnp.int32(1), False, mul)
+            counted[name] = (np.asarray(ds) != 0) & ok
+            if name == "before":
+                assert ok.sum() > n // 2
+        assert not counted["before"].any()
+        assert counted["beyond"].sum() > n // 2

@@ -46,7 +46,10 @@ takes crossings between the eye and q (ZPASS sides, the caps before q), a primit
 whose nearest point is beyond the farthest q of a block by more than ``DEPTH_MARGIN`` of
 that depth is left out of that block's list; where it only takes crossings beyond q
 (ZFAIL's true front caps), a cap whose farthest vertex is nearer than the block's
-nearest q by more than that margin is left out.
+nearest q by more than that margin is left out. A ZPASS side also leaves the list of
+every cell over whose rectangle its plane lies deeper than the cell's farthest q by more
+than a margin of its own, which covers the rounding of the kernels' test of that plane
+(:func:`_plane_depth_cut`, a hierarchical-z test of the plane; :func:`depth_planes`).
 
 Each facet plane is shifted outwards by the same pad (the region it bounds then holds
 every direction within the rounding angle of the cone), and a generator pair whose
@@ -330,12 +333,19 @@ def _pi2_rounding(a, b, da, r_ratio, eps: float, q_bound) -> tuple[np.ndarray, n
     (scalar or [R]): ``PAD_FACTOR`` eps |q' - A'| times r_ratio [R], the pad unit of
     r = (L' - L_w A') x (B' - A') (``_pair_ratio(-da, b - a)``: r's error is a few
     eps |L' - L_w A'| |B' - A'|)."""
-    r = np.cross(-da, b - a)
-    r_len = _norm(r)
-    some = r_len > 0
-    eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", a, r)) / np.where(some, r_len, 1.0),
-                        0.0)
-    return eye_dist, PAD_FACTOR * eps * r_ratio * (_norm(a) + q_bound)
+    return _plane_rounding(np.cross(-da, b - a), a, r_ratio, eps, q_bound)
+
+
+def _plane_rounding(normal, point, ratio, eps: float, q_bound) -> tuple[np.ndarray, np.ndarray]:
+    """The eye's distance [K] from the planes ``normal . (x - point) = 0`` ([K, 3] each;
+    0 where the normal is zero), and the distance ``PAD_FACTOR eps ratio (|point| +
+    q_bound)`` [K] within which a predicate ``(q' - point) . normal`` whose normal has the
+    pad unit ``ratio`` [K] may take the wrong sign for a q with |q'| <= q_bound."""
+    length = _norm(normal)
+    some = length > 0
+    eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", point, normal))
+                        / np.where(some, length, 1.0), 0.0)
+    return eye_dist, PAD_FACTOR * eps * ratio * (_norm(point) + q_bound)
 
 
 def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
@@ -447,6 +457,145 @@ def clip_fins(shape: tuple, grid: "SampleGrid", basis, eps: float) -> tuple[tupl
         keep = np.minimum(za[cut], zb[cut]) <= new
         limit[np.flatnonzero(cut)[keep]] = new[keep]
     return (out, ratio), cut
+
+
+#: the per-cell depth cut of ZPASS sides by their planes (:func:`side_planes`); False:
+#: off (the lists of the fin clip and the near-depth cut alone)
+PLANE_CUT = True
+
+
+#: the per-plane depth margin of the plane cut is at least this (and at least twice
+#: the rounding bound's share of the eye's distance)
+PLANE_MARGIN_MIN = 2.0 ** -20
+
+
+def depth_planes(normal: np.ndarray, point: np.ndarray, ratio: np.ndarray, eps: float,
+                 q_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """The planes of K primitives for the per-cell depth cut of :func:`screen_bins`.
+
+    Each primitive lies in the plane ``normal . (x - point) = 0`` (eye-relative, [K, 3]
+    each), whose side a kernel decides for a q by a predicate of that normal that may
+    take the wrong sign only within the distance ``rho = PAD_FACTOR eps ratio (|point| +
+    q_max)`` of the plane (``ratio`` [K]: the pad unit of the normal's two factors, q
+    with |q'| <= ``q_max``; :func:`_plane_rounding`). A sample whose view ray meets the
+    plane beyond (1 + m) times its own depth lies at least ``m / (1 + m)`` of the eye's
+    distance d from the plane, on the eye's side; with
+    ``m = max(PLANE_MARGIN_MIN, 2 rho / (d - rho))`` that exceeds rho, so the predicate
+    takes the eye's sign and the sample's segment E -> q does not cross the primitive.
+    A plane with ``d <= 3 rho`` (through or near the eye) is not usable.
+
+    Returns:
+        (normal [K, 3], offset [K]) float64: the plane ``normal . x = offset (1 + m)``
+        oriented so that offset >= 0 (the eye on its negative side), the margin folded
+        into the offset (the cut compares the depth ``offset / (normal . w)`` along a
+        view ray w with the farthest q of a cell); offset NaN where the plane is not
+        usable (the cut keeps the primitive in every cell).
+    """
+    normal = np.asarray(normal, np.float64)
+    point = np.asarray(point, np.float64)
+    offset = np.einsum("ij,ij->i", normal, point)
+    eye_dist, rounding = _plane_rounding(normal, point, ratio, eps, q_max)
+    usable = (eye_dist > 0) & (eye_dist > 3 * rounding)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        margin = np.maximum(PLANE_MARGIN_MIN, 2 * rounding / (eye_dist - rounding))
+    flip = np.where(offset < 0, -1.0, 1.0)
+    return normal * flip[:, None], np.where(usable, np.abs(offset) / (1 + margin), np.nan)
+
+
+def side_planes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
+                q_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`depth_planes` of R side quads (eye-relative edges a, b [R, 3], light [4]):
+    the side of AB lies in the plane of ``r = (L' - L_w A') x (B' - A')`` through A', the
+    normal of the kernels' edge test pi2 (whose rounding :func:`_pi2_rounding` bounds)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    light = np.asarray(light, np.float64)
+    da = float(light[3]) * a - light[:3]
+    return depth_planes(np.cross(-da, b - a), a, _pair_ratio(-da, b - a), eps, q_max)
+
+
+def _cell_ranges(grid: "SampleGrid", axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """float64 [n]: each cell column's (axis 0) or row's (axis 1) bounds, the border
+    cells cut to the samples' box (every projected q in the cell lies within)."""
+    lower, upper = grid.cell_edges(axis)
+    corners = grid.box_corners()[:, axis]
+    return np.maximum(lower, corners.min()), np.minimum(upper, corners.max())
+
+
+def _plane_depth_cut(grid: "SampleGrid", basis, ranks: np.ndarray, starts: np.ndarray,
+                     lengths: np.ndarray, prim: np.ndarray, planes: tuple):
+    """Drop from each cell's list the sides whose plane lies deeper than every sample
+    of the cell can cross (ZPASS: a crossing lies between the eye and q).
+
+    Along the view ray ``z w`` (``w = u right + v up + forward``, z the camera depth)
+    the plane ``n . x = c`` (c >= 0) lies at depth ``c / (n . w)``; over a cell's
+    rectangle it comes no nearer than Z exactly when ``c > Z max(n . w)``, and
+    ``n . w`` is linear in (u, v): its maximum is its value at the centre plus
+    ``|n . right| hu + |n . up| hv`` (hu, hv the half sizes). Z is the farthest q of
+    the cell's blocks, and c carries the plane's margin (:func:`side_planes`): every
+    sample of a cell whose side is dropped lies that margin of its depth in front of
+    the plane along its ray, beyond the rounding of the kernels' test. The float64
+    evaluation errs only where ``n . w`` is within a few ulps of its terms of 0, where
+    the plane's depth is vastly beyond any Z unless the plane passes near the eye (then
+    it is not usable). NaN (an unusable plane) keeps the side. The border cells are
+    cut to the samples' box.
+
+    Args:
+        ranks, starts, lengths: the cells' lists (:func:`_cell_lists`: ranks into
+            ``prim``, ascending per cell, the cells column after column).
+        prim: int [K] the primitive of each rank; planes: :func:`side_planes` of the K
+            primitives.
+    Returns:
+        (ranks, starts, lengths) of the kept entries, in the same layout.
+    """
+    gx, gy = grid.shape
+    normal, offset = planes
+    right, up, back = (np.asarray(x, np.float64) for x in basis)
+    # per rank (each cell's list ascending: gathers in order): n.right, |n.right|, n.up,
+    # |n.up|, n.forward, c
+    a_u, a_v = normal @ right, normal @ up
+    coef = [x[prim] for x in (a_u, np.abs(a_u), a_v, np.abs(a_v), -(normal @ back), offset)]
+    real = grid.block_cell < grid.cells
+    limit = np.full(grid.cells, -np.inf)
+    np.maximum.at(limit, grid.block_cell[real], grid.zmax[real])
+    limit = limit.reshape(gy, gx)
+    (u0, u1), (v0, v1) = _cell_ranges(grid, 0), _cell_ranges(grid, 1)
+    uc, hu, vc, hv = (u0 + u1) / 2, (u1 - u0) / 2, (v0 + v1) / 2, (v1 - v0) / 2
+    per_cell = lengths.reshape(gy, gx)
+    width = int(per_cell.sum(axis=0).max()) if len(ranks) else 0
+    most, term = np.empty(width), np.empty(width)
+    keep = np.empty(width, bool)
+    pieces, counts = [], np.zeros((gx, gy), np.int64)
+    first = 0
+    # one column of cells at a time: its lists are consecutive (in cache) and u's range
+    # is one; in place (no temporaries)
+    for x in range(gx):
+        n = int(per_cell[:, x].sum())
+        if not n:
+            continue
+        r = ranks[first:first + n]
+        m, t, k = most[:n], term[:n], keep[:n]
+        for col, scale in ((0, uc[x]), (1, hu[x]), (2, np.repeat(vc, per_cell[:, x])),
+                           (3, np.repeat(hv, per_cell[:, x]))):
+            np.take(coef[col], r, out=t)
+            if col:
+                t *= scale
+                m += t
+            else:
+                np.multiply(t, scale, out=m)
+        m += coef[4][r]
+        m *= np.repeat(limit[:, x], per_cell[:, x])
+        # NaN (an unusable plane's offset, or 0 x inf) compares False: the side is kept
+        np.greater(coef[5][r], m, out=k)
+        np.logical_not(k, out=k)
+        pieces.append(r[k])
+        kept = np.zeros(n + 1, np.int64)
+        np.cumsum(k.view(np.uint8), dtype=np.int64, out=kept[1:])
+        counts[x] = np.diff(kept[np.cumsum(per_cell[:, x])], prepend=0)
+        first += n
+    kept_ranks = np.concatenate(pieces) if pieces else ranks[:0]
+    # the layout of _cell_lists: cell (row y, column x) is y * gx + x
+    return (kept_ranks, (np.cumsum(counts) - counts.ravel()).reshape(gx, gy).T.ravel(),
+            counts.T.ravel())
 
 
 def _per_cell(grid: "SampleGrid", values: np.ndarray, real: np.ndarray) -> np.ndarray:
@@ -658,7 +807,8 @@ def _boxes(pts: np.ndarray, ratio: np.ndarray, eps: float, basis, grid: "SampleG
 
 
 def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
-                near: np.ndarray | None = None, far: np.ndarray | None = None) -> ScreenBins:
+                near: np.ndarray | None = None, far: np.ndarray | None = None,
+                planes: tuple | None = None) -> ScreenBins:
     """Bin K primitives into the cells of ``grid`` (host, float64).
 
     Args:
@@ -672,9 +822,14 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
         far: [K] each primitive's farthest depth, when only crossings beyond q count
             (the mirrored cut: a block skips the primitives nearer than its nearest q by
             more than ``DEPTH_MARGIN``), else None; not with ``near``.
+        planes: with ``near``, the primitives' planes (:func:`side_planes`): each cell
+            also drops the primitives whose plane lies beyond its farthest q over its
+            rectangle (:func:`_plane_depth_cut`), else None.
     """
     if near is not None and far is not None:
         raise ValueError("screen_bins: a depth cut by near or by far depth, not both")
+    if planes is not None and near is None:
+        raise ValueError("screen_bins: the plane depth cut needs the near-depth cut")
     n_prim = len(shapes[0][0])
     n_cells = grid.cells
     boxes = [_boxes(pts, ratio, eps, basis, grid) for pts, ratio in shapes]
@@ -708,6 +863,9 @@ def screen_bins(grid: SampleGrid, shapes: list, eps: float, basis,
         spans.append((np.tile(np.arange(gy), len(every)), np.zeros(gy * len(every), np.int64),
                       np.full(gy * len(every), gx - 1), np.repeat(every, gy)))
     ranks, starts, lengths = _cell_lists(grid, spans, unique=len(boxes) > 1)
+    if planes is not None and PLANE_CUT:
+        ranks, starts, lengths = _plane_depth_cut(grid, basis, ranks, starts, lengths, prim,
+                                                  planes)
     # the 'all' cell: every primitive, in rank order
     ranks = np.concatenate([ranks, np.arange(n_prim, dtype=ranks.dtype)])
     starts = np.append(starts, len(ranks) - n_prim)

@@ -39,7 +39,8 @@ from ..core.numerics import cross3, opaque_multiplier, opaque_zero, ordered_dot
 from ..core.result import ShadowResult
 from ..core.timing import StageTimer
 from ..engines.silhouette_bins import (batch_arrays, cap_shapes, clip_fins, farthest_depth,
-                                      nearest_depth, sample_grid, screen_bins, side_shapes)
+                                      nearest_depth, sample_grid, screen_bins, side_planes,
+                                      side_shapes)
 from ..engines.silhouette_stencil import (binned_cap_kernel, binned_side_kernel, cap_kernel,
                                           cap_table, edge_table, side_kernel, vertex_terms)
 from ..geometry.caster_culling import front_face_culled
@@ -267,12 +268,13 @@ def silhouette(scene, gbuf, light, *, precision, shadow_eps, stencil, multiplici
             with timer.stage("stencil_bins"):
                 ends = [verts[ev[adj.record_edge[drawn], k]] for k in range(2)]
                 shapes = side_shapes(*ends, light_rel, eps_w, *grid.q_len_range)
-                near = None
+                near = planes = None
                 if not zfail:       # crossings before q only: cut by depth, fins clipped
                     near = nearest_depth(shapes[0][0], basis, directions=2)
+                    planes = side_planes(*ends, light_rel, eps_w, grid.q_len_range[1])
                     shape, clipped = clip_fins(shapes[0], grid, basis, eps_w)
                     shapes, clipped_sides = [shape], int(clipped.sum())
-                sb = screen_bins(grid, shapes, eps_w, basis, near)
+                sb = screen_bins(grid, shapes, eps_w, basis, near, planes=planes)
                 args = batch_arrays(grid, sb)
             sten, upd = timer.run("stencil", binned_side_kernel(zfail), q_blocks,
                                   *map(jnp.asarray, args), jnp.asarray(table),
