@@ -463,7 +463,8 @@ def test_side_plane_margins_keep_the_kernels_crossings():
     margin folded into :func:`side_planes`' offset) is not counted as crossing the side
     by the kernels' own float32 test; the same samples moved beyond the plane are, for
     most sides (the check can fail). Edges 1 to 1e4 from the eye, 1e-5 to 0.3 of that
-    long; lights 0.1 to 100 times as far, or directional."""
+    long, under a point light 50 away or a directional light; and edges 1e-3 to 3 from
+    a point light 30 away (pi3's rounding grows as the light nears the edge)."""
     import jax.numpy as jnp
 
     from shadowlab.core.numerics import opaque_multiplier, opaque_zero
@@ -477,13 +478,23 @@ def test_side_plane_margins_keep_the_kernels_crossings():
         p = rng.normal(size=(n, 3))
         return p * (scale / np.linalg.norm(p, axis=1))[:, None]
 
-    dist = 10.0 ** rng.uniform(0, 4, n)
-    a = point(dist)
-    a[:, 2] = -np.abs(a[:, 2])                              # in front of the eye (z < 0)
-    b = a + point(dist * 10.0 ** rng.uniform(-5, np.log10(0.3), n))
-    a, b = a.astype(np.float32), b.astype(np.float32)
-    for light in (np.append(point(1.0)[0] * 50.0, 1.0), np.append(point(1.0)[0], 0.0)):
-        light = light.astype(np.float32)
+    def far_edges():
+        dist = 10.0 ** rng.uniform(0, 4, n)
+        a = point(dist)
+        a[:, 2] = -np.abs(a[:, 2])                          # in front of the eye (z < 0)
+        return a, a + point(dist * 10.0 ** rng.uniform(-5, np.log10(0.3), n)), dist
+
+    def near_light_edges(light):
+        a = light[:3] + point(10.0 ** rng.uniform(-3, 0.5, n))
+        b = a + point(np.linalg.norm(a - light[:3], axis=1) * 10.0 ** rng.uniform(-2, 0, n))
+        return a, b, np.linalg.norm(a, axis=1)
+
+    near = np.array([1.0, -2.0, -30.0, 1.0])
+    cases = [(np.append(point(1.0)[0] * 50.0, 1.0), far_edges()),
+             (np.append(point(1.0)[0], 0.0), far_edges()),
+             (near, near_light_edges(near))]
+    for light, (a, b, dist) in cases:
+        a, b, light = a.astype(np.float32), b.astype(np.float32), light.astype(np.float32)
         a64, b64, l64 = a.astype(np.float64), b.astype(np.float64), light.astype(np.float64)
         da = l64[3] * a64 - l64[:3]
         normal, offset = bins.side_planes(a64, b64, l64, eps, 2 * dist.max())
@@ -514,6 +525,6 @@ def test_side_plane_margins_keep_the_kernels_crossings():
                                    jnp.int32(1), jnp.int32(1), False, mul)
             counted[name] = (np.asarray(ds) != 0) & ok
             if name == "before":
-                assert ok.sum() > n // 2
+                assert ok.sum() > n // 3
         assert not counted["before"].any()
-        assert counted["beyond"].sum() > n // 2
+        assert counted["beyond"].sum() > n // 3

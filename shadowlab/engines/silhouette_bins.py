@@ -48,7 +48,7 @@ that depth is left out of that block's list; where it only takes crossings beyon
 (ZFAIL's true front caps), a cap whose farthest vertex is nearer than the block's
 nearest q by more than that margin is left out. A ZPASS side also leaves the list of
 every cell over whose rectangle its plane lies deeper than the cell's farthest q by more
-than a margin of its own, which covers the rounding of the kernels' test of that plane
+than a margin of its own, which covers the rounding of the kernels' tests of that plane
 (:func:`_plane_depth_cut`, a hierarchical-z test of the plane; :func:`depth_planes`).
 
 Each facet plane is shifted outwards by the same pad (the region it bounds then holds
@@ -333,19 +333,12 @@ def _pi2_rounding(a, b, da, r_ratio, eps: float, q_bound) -> tuple[np.ndarray, n
     (scalar or [R]): ``PAD_FACTOR`` eps |q' - A'| times r_ratio [R], the pad unit of
     r = (L' - L_w A') x (B' - A') (``_pair_ratio(-da, b - a)``: r's error is a few
     eps |L' - L_w A'| |B' - A'|)."""
-    return _plane_rounding(np.cross(-da, b - a), a, r_ratio, eps, q_bound)
-
-
-def _plane_rounding(normal, point, ratio, eps: float, q_bound) -> tuple[np.ndarray, np.ndarray]:
-    """The eye's distance [K] from the planes ``normal . (x - point) = 0`` ([K, 3] each;
-    0 where the normal is zero), and the distance ``PAD_FACTOR eps ratio (|point| +
-    q_bound)`` [K] within which a predicate ``(q' - point) . normal`` whose normal has the
-    pad unit ``ratio`` [K] may take the wrong sign for a q with |q'| <= q_bound."""
-    length = _norm(normal)
-    some = length > 0
-    eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", point, normal))
-                        / np.where(some, length, 1.0), 0.0)
-    return eye_dist, PAD_FACTOR * eps * ratio * (_norm(point) + q_bound)
+    r = np.cross(-da, b - a)
+    r_len = _norm(r)
+    some = r_len > 0
+    eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", a, r)) / np.where(some, r_len, 1.0),
+                        0.0)
+    return eye_dist, PAD_FACTOR * eps * r_ratio * (_norm(a) + q_bound)
 
 
 def side_shapes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
@@ -469,20 +462,19 @@ PLANE_CUT = True
 PLANE_MARGIN_MIN = 2.0 ** -20
 
 
-def depth_planes(normal: np.ndarray, point: np.ndarray, ratio: np.ndarray, eps: float,
-                 q_max: float) -> tuple[np.ndarray, np.ndarray]:
+def depth_planes(normal: np.ndarray, point: np.ndarray, rounding: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """The planes of K primitives for the per-cell depth cut of :func:`screen_bins`.
 
     Each primitive lies in the plane ``normal . (x - point) = 0`` (eye-relative, [K, 3]
-    each), whose side a kernel decides for a q by a predicate of that normal that may
-    take the wrong sign only within the distance ``rho = PAD_FACTOR eps ratio (|point| +
-    q_max)`` of the plane (``ratio`` [K]: the pad unit of the normal's two factors, q
-    with |q'| <= ``q_max``; :func:`_plane_rounding`). A sample whose view ray meets the
-    plane beyond (1 + m) times its own depth lies at least ``m / (1 + m)`` of the eye's
-    distance d from the plane, on the eye's side; with
-    ``m = max(PLANE_MARGIN_MIN, 2 rho / (d - rho))`` that exceeds rho, so the predicate
-    takes the eye's sign and the sample's segment E -> q does not cross the primitive.
-    A plane with ``d <= 3 rho`` (through or near the eye) is not usable.
+    each), and the kernels' predicates may misjudge on which side of it the eye or a q
+    lies only within the distance ``rounding`` [K] of the plane. A sample whose view ray
+    meets the plane beyond (1 + m) times its own depth lies at least ``m / (1 + m)`` of
+    the eye's distance d from the plane, on the eye's side; with
+    ``m = max(PLANE_MARGIN_MIN, 2 rho / (d - rho))`` (rho the rounding) that exceeds
+    rho, so the predicates see the sample on the eye's side and its segment E -> q does
+    not cross the primitive. A plane with ``d <= 3 rho`` (through or near the eye) is
+    not usable.
 
     Returns:
         (normal [K, 3], offset [K]) float64: the plane ``normal . x = offset (1 + m)``
@@ -494,7 +486,8 @@ def depth_planes(normal: np.ndarray, point: np.ndarray, ratio: np.ndarray, eps: 
     normal = np.asarray(normal, np.float64)
     point = np.asarray(point, np.float64)
     offset = np.einsum("ij,ij->i", normal, point)
-    eye_dist, rounding = _plane_rounding(normal, point, ratio, eps, q_max)
+    length = _norm(normal)
+    eye_dist = np.abs(offset) / np.where(length > 0, length, np.inf)
     usable = (eye_dist > 0) & (eye_dist > 3 * rounding)
     with np.errstate(divide="ignore", invalid="ignore"):
         margin = np.maximum(PLANE_MARGIN_MIN, 2 * rounding / (eye_dist - rounding))
@@ -504,13 +497,24 @@ def depth_planes(normal: np.ndarray, point: np.ndarray, ratio: np.ndarray, eps: 
 
 def side_planes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
                 q_max: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`depth_planes` of R side quads (eye-relative edges a, b [R, 3], light [4]):
-    the side of AB lies in the plane of ``r = (L' - L_w A') x (B' - A')`` through A', the
-    normal of the kernels' edge test pi2 (whose rounding :func:`_pi2_rounding` bounds)."""
+    """:func:`depth_planes` of R side quads (eye-relative edges a, b [R, 3], light [4],
+    samples with |q'| <= ``q_max``, ``eps`` the working precision's).
+
+    The side of AB lies in the plane of ``r = (L' - L_w A') x (B' - A')`` through A'.
+    The kernels see a q's side of it through the edge test pi2 (rounding distance from
+    :func:`_pi2_rounding`) and the eye's side through pi3 = -D, ``D = L' . (A' x (B' -
+    A'))``, whose products err by a few eps |L'| |A'| |B' - A'|: a distance of that over
+    |r|, taken ``PAD_FACTOR`` times (large where the light lies close to the edge).
+    """
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     light = np.asarray(light, np.float64)
     da = float(light[3]) * a - light[:3]
-    return depth_planes(np.cross(-da, b - a), a, _pair_ratio(-da, b - a), eps, q_max)
+    normal = np.cross(-da, b - a)
+    _, pi2 = _pi2_rounding(a, b, da, _pair_ratio(-da, b - a), eps, q_max)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pi3 = (PAD_FACTOR * eps * np.linalg.norm(light[:3]) * _norm(a) * _norm(b - a)
+               / _norm(normal))
+    return depth_planes(normal, a, np.maximum(pi2, pi3))
 
 
 def _cell_ranges(grid: "SampleGrid", axis: int) -> tuple[np.ndarray, np.ndarray]:
