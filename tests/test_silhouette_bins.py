@@ -528,3 +528,26 @@ def test_side_plane_margins_keep_the_kernels_crossings():
                 assert ok.sum() > n // 3
         assert not counted["before"].any()
         assert counted["beyond"].sum() > n // 3
+
+
+def test_plane_depth_cut_keeps_an_outlier_of_a_collapsed_grid():
+    """When nearly every q shares one u (the grid's core has no width, so every q lies
+    in the first column), a plane between the eye and an outlier q off that line stays
+    in the outlier's cell."""
+    basis = (np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]))  # z = -w
+    rng = np.random.default_rng(2)
+    q = np.stack([np.zeros(2001), rng.uniform(-0.5, 0.5, 2001), -np.ones(2001)], 1)
+    q[-1] = (0.5, 0.0, -1.0)                        # the outlier
+    grid = bins.sample_grid(q, basis, (64, 64), tile=16, block=8)
+    assert grid.scale[0] == 0 and grid.cell[-1] == grid.cell[0] // grid.shape[0] * grid.shape[0]
+    # the plane x = 0.3 crosses the outlier's segment E -> q at 0.6 of its depth
+    normal, offset = np.array([[1.0, 0.0, 0.0]]), np.array([0.3])
+    gx, gy = grid.shape
+    layout = np.arange(grid.cells).reshape(gy, gx).T.ravel()
+    lengths = np.ones(grid.cells, np.int64)
+    starts = np.empty(grid.cells, np.int64)
+    starts[layout] = np.arange(grid.cells)
+    ranks = np.zeros(grid.cells, np.int32)
+    _, _, kept = bins._plane_depth_cut(grid, basis, ranks, starts, lengths, np.array([0]),
+                                       (normal, offset))
+    assert kept[grid.cell[-1]] == 1

@@ -148,13 +148,16 @@ class SampleGrid:
 
     def cell_edges(self, axis: int) -> tuple[np.ndarray, np.ndarray]:
         """float64 [n] the lower and upper bound of each cell column (axis 0) or row
-        (axis 1), widened by a millionth of a cell; the border cells reach infinity."""
+        (axis 1), widened by a millionth of a cell; the border cells reach infinity. A
+        grid of no extent along the axis (its core collapsed to one value: :meth:`index`
+        puts every q in the first cell, outliers included) gives every cell the whole
+        line."""
         n, lo, sc = self.shape[axis], self.lo[axis], self.scale[axis]
         i = np.arange(n, dtype=np.float64)
         if sc > 0:
             lower, upper = lo + (i - 1e-6) / sc, lo + (i + 1 + 1e-6) / sc
         else:
-            lower, upper = np.full(n, lo), np.full(n, lo)
+            lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
         lower[0], upper[-1] = -np.inf, np.inf
         return lower, upper
 
@@ -587,7 +590,8 @@ def _plane_depth_cut(grid: "SampleGrid", basis, ranks: np.ndarray, starts: np.nd
             else:
                 np.multiply(t, scale, out=m)
         m += coef[4][r]
-        m *= np.repeat(limit[:, x], per_cell[:, x])
+        with np.errstate(invalid="ignore"):     # 0 x -inf in a cell without samples
+            m *= np.repeat(limit[:, x], per_cell[:, x])
         # NaN (an unusable plane's offset, or 0 x inf) compares False: the side is kept
         np.greater(coef[5][r], m, out=k)
         np.logical_not(k, out=k)
