@@ -306,10 +306,11 @@ def _norm(x):
     return np.sqrt(np.einsum("...i,...i->...", x, x))
 
 
-def _pair_ratio(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def _pair_ratio(x: np.ndarray, y: np.ndarray, cross: np.ndarray | None = None) -> np.ndarray:
     """[K]: the pad unit 1 + |x| |y| / |x x y| (1 + 1 / sin of their angle) of the
-    factors x, y [K, 3] of a predicate's normal x x y (inf where x x y = 0)."""
-    cr = _norm(np.cross(x, y))
+    factors x, y [K, 3] of a predicate's normal x x y (inf where x x y = 0; ``cross``:
+    x x y when the caller has it)."""
+    cr = _norm(np.cross(x, y) if cross is None else cross)
     num = _norm(x) * _norm(y)
     return np.where(cr > 0, 1.0 + num / np.where(cr > 0, cr, 1), np.inf)
 
@@ -329,14 +330,15 @@ def cap_shapes(tri: np.ndarray, light: np.ndarray | None) -> list:
     return out
 
 
-def _pi2_rounding(a, b, da, r_ratio, eps: float, q_bound) -> tuple[np.ndarray, np.ndarray]:
+def _pi2_rounding(a, b, da, r_ratio, eps: float, q_bound, r=None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """The eye's distance from the side planes of R sides (eye-relative a, b [R, 3],
     D_A [R, 3]; 0 where the plane is undefined) [R], and the distance [R] within which the
     edge test pi2 = (q' - A') . r may take the wrong sign for a q with |q'| <= q_bound
     (scalar or [R]): ``PAD_FACTOR`` eps |q' - A'| times r_ratio [R], the pad unit of
     r = (L' - L_w A') x (B' - A') (``_pair_ratio(-da, b - a)``: r's error is a few
-    eps |L' - L_w A'| |B' - A'|)."""
-    r = np.cross(-da, b - a)
+    eps |L' - L_w A'| |B' - A'|; ``r`` [R, 3] when the caller has it)."""
+    r = np.cross(-da, b - a) if r is None else r
     r_len = _norm(r)
     some = r_len > 0
     eye_dist = np.where(some, np.abs(np.einsum("ij,ij->i", a, r)) / np.where(some, r_len, 1.0),
@@ -512,10 +514,11 @@ def side_planes(a: np.ndarray, b: np.ndarray, light: np.ndarray, eps: float,
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     light = np.asarray(light, np.float64)
     da = float(light[3]) * a - light[:3]
-    normal = np.cross(-da, b - a)
-    _, pi2 = _pi2_rounding(a, b, da, _pair_ratio(-da, b - a), eps, q_max)
+    edge = b - a
+    normal = np.cross(-da, edge)
+    _, pi2 = _pi2_rounding(a, b, da, _pair_ratio(-da, edge, normal), eps, q_max, normal)
     with np.errstate(divide="ignore", invalid="ignore"):
-        pi3 = (PAD_FACTOR * eps * np.linalg.norm(light[:3]) * _norm(a) * _norm(b - a)
+        pi3 = (PAD_FACTOR * eps * np.linalg.norm(light[:3]) * _norm(a) * _norm(edge)
                / _norm(normal))
     return depth_planes(normal, a, np.maximum(pi2, pi3))
 
@@ -562,9 +565,7 @@ def _plane_depth_cut(grid: "SampleGrid", basis, ranks: np.ndarray, starts: np.nd
     a_u, a_v = normal @ right, normal @ up
     coef = [x[prim] for x in (a_u, np.abs(a_u), a_v, np.abs(a_v), -(normal @ back), offset)]
     real = grid.block_cell < grid.cells
-    limit = np.full(grid.cells, -np.inf)
-    np.maximum.at(limit, grid.block_cell[real], grid.zmax[real])
-    limit = limit.reshape(gy, gx)
+    limit = _per_cell(grid, grid.zmax[real], real)
     (u0, u1), (v0, v1) = _cell_ranges(grid, 0), _cell_ranges(grid, 1)
     uc, hu, vc, hv = (u0 + u1) / 2, (u1 - u0) / 2, (v0 + v1) / 2, (v1 - v0) / 2
     per_cell = lengths.reshape(gy, gx)
@@ -581,14 +582,13 @@ def _plane_depth_cut(grid: "SampleGrid", basis, ranks: np.ndarray, starts: np.nd
             continue
         r = ranks[first:first + n]
         m, t, k = most[:n], term[:n], keep[:n]
-        for col, scale in ((0, uc[x]), (1, hu[x]), (2, np.repeat(vc, per_cell[:, x])),
+        np.take(coef[0], r, out=m)
+        m *= uc[x]
+        for col, scale in ((1, hu[x]), (2, np.repeat(vc, per_cell[:, x])),
                            (3, np.repeat(hv, per_cell[:, x]))):
             np.take(coef[col], r, out=t)
-            if col:
-                t *= scale
-                m += t
-            else:
-                np.multiply(t, scale, out=m)
+            t *= scale
+            m += t
         m += coef[4][r]
         with np.errstate(invalid="ignore"):     # 0 x -inf in a cell without samples
             m *= np.repeat(limit[:, x], per_cell[:, x])
