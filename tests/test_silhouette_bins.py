@@ -551,3 +551,15 @@ def test_plane_depth_cut_keeps_an_outlier_of_a_collapsed_grid():
     _, _, kept = bins._plane_depth_cut(grid, basis, ranks, starts, lengths, np.array([0]),
                                        (normal, offset))
     assert kept[grid.cell[-1]] == 1
+
+
+def test_screen_bins_refuse_planes_without_the_near_cut():
+    """The plane depth cut only holds for crossings before q: planes without the
+    near-depth cut are refused with a message naming both."""
+    basis = (np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]))
+    q = np.stack([np.linspace(-1, 1, 50), np.linspace(-1, 1, 50), -np.ones(50)], 1)
+    grid = bins.sample_grid(q, basis, (16, 16), tile=8, block=8)
+    shapes = [(np.array([[[0.0, 0, -2], [0.1, 0, -2], [0, 0.1, -2]]]), np.array([2.0]))]
+    planes = (np.array([[0.0, 0.0, -1.0]]), np.array([2.0]))
+    with pytest.raises(ValueError, match="plane depth cut needs the near-depth cut"):
+        bins.screen_bins(grid, shapes, 1e-7, basis, planes=planes)
