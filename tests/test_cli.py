@@ -306,11 +306,41 @@ def test_every_built_in_bench_case_is_a_valid_config(size):
         config = load_config(None, list(c["overrides"]), check_memory=False)
         reps = c.get("repeats", 1)
         assert isinstance(reps, int) and reps >= 1, c["name"]
+        target = c.get("target")
+        assert target is None or (isinstance(target, float) and target > 0), c["name"]
+        if c["name"].startswith(("exact-", "psv-")):       # issue 16: 3x up to 100k, 5x at 1M
+            assert target == (5.0 if "-1M-" in c["name"] else 3.0), c["name"]
         if tuple(config.camera.resolution) == (1024, 1024):
             covered |= set(config.methods.names)
     if size == "full":
         exact = {n for n in names() if get(n).kind is MethodKind.EXACT}
         assert exact <= covered, sorted(exact - covered)
+
+
+def test_bench_output_states_each_method_against_its_cases_target():
+    """A case's target (bench.toml) is looked up by name, recorded, and each hard method's
+    static ratio is judged against it (at the target: met)."""
+    from shadowlab.harness.bench import case_target, format_bench, target_verdict
+
+    assert case_target("exact-fuzzy-100k-1024") == 3.0
+    assert case_target("exact-sphere_grid-1M-1024") == 5.0
+    assert case_target("gate-1024") is None and case_target("no such case") is None
+    assert [target_verdict(r, 3.0) for r in (2.99, 3.0, 3.01)] == ["met", "met", "missed"]
+    assert target_verdict(None, 3.0) is None and target_verdict(2.0, None) is None
+
+    def method(ratio):
+        return {"stages": {"trace": 0.01}, "compile_seconds": 0.1, "median_seconds": 0.02,
+                "ratio_to_reference": ratio, "dynamic_ratio": 1.0,
+                "error": {"mismatches": 0, "valid_pixels": 4}}
+    case = {"name": "c", "scene": "s", "triangles": 3, "resolution": [2, 2],
+            "reference": {"median_seconds": 0.01, "dynamic_median_seconds": 0.02},
+            "target_ratio": 3.0, "methods": {"fast": method(2.5), "slow": method(3.5)}}
+    lines = format_bench({"repeats": 1, "cases": [case]}).splitlines()
+    assert "  target: at most 3x Embree (static) per method" in lines
+    assert [line.split("[")[-1] for line in lines if line.lstrip().startswith(("fast", "slow"))
+            ] == ["target met]", "target missed]"]
+    del case["target_ratio"]
+    assert "target" not in format_bench({"repeats": 1, "cases": [case]})
 
 
 def test_bench_records_the_machine_load_and_says_when_it_was_busy():

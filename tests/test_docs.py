@@ -88,6 +88,38 @@ def test_bench_report_renders_hard_and_soft_cases():
     assert "Machine load: not recorded" in text
 
 
+def test_bench_report_states_each_target_from_the_latest_file():
+    """The targets table takes each case from the last file that holds it, its target
+    from the JSON or else from bench.toml (by the case's name), judges every hard method's
+    static ratio, names a missed method's two largest stages, and lists the targeted
+    built-in cases that no file holds."""
+    from shadowlab.harness import bench_report
+
+    def hard(ratio, **stages):
+        return {"stages": {**stages, "total": 1.0}, "compile_seconds": 0.5,
+                "median_seconds": 0.25, "ratio_to_reference": ratio, "dynamic_ratio": 1.0,
+                "error": {"valid_pixels": 4, "mismatches": 0}}
+
+    def case(name, methods, **extra):
+        return {"name": name, "scene": "s", "triangles": 1000, "resolution": [2, 2],
+                "valid_pixels": 4, "reference": {"median_seconds": 0.1, "runs": [0.1]},
+                "methods": methods, **extra}
+    older = {"cases": [case("exact-fuzzy-100k-1024", {"m": hard(4.0, a=0.1)})]}
+    newer = {"cases": [case("exact-fuzzy-100k-1024", {"m": hard(3.0, a=0.1)}),
+                       case("own", {"m": hard(6.0, small=0.01, big=0.2, mid=0.03),
+                                    "skip": {"skipped": "not here"}}, target_ratio=5.0),
+                       case("untargeted", {"m": hard(9.0)})]}
+    text = bench_report.render([("old.json", older), ("new.json", newer)])
+    rows = [line for line in text.splitlines() if line.startswith("| `") and "x |" in line]
+    assert rows == [
+        "| `exact-fuzzy-100k-1024` | 1,000 | 3x | `m` | 3.00 | **met** | 250.0 |  | `new.json` |",
+        "| `own` | 1,000 | 5x | `m` | 6.00 | **missed** | 250.0 | big 200.0, mid 30.0 "
+        "| `new.json` |"]
+    assert "Met: 1 of 2." in text
+    missing = next(line for line in text.splitlines() if line.startswith("Cases with a target"))
+    assert "`exact-sphere_grid-1M-1024`" in missing and "exact-fuzzy-100k-1024" not in missing
+
+
 def test_public_files_do_not_point_into_the_workspace():
     """No project file cites the private workspace, its design notes or paper files."""
     import re

@@ -22,8 +22,6 @@ Two ratios per hard method (docs/benchmarks.md, "Protocol"):
 from __future__ import annotations
 
 import time
-import tomllib
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +33,8 @@ from ..analysis import compare_soft
 from .evaluate import References, evaluate
 from ..methods import MethodKind, compute_shadows, get, light_problem
 from ..reference.raycast import reference_shadows, render_gbuffer, soft_reference
+from .bench_cases import (builtin_case, case_repeats, case_target, default_cases,  # noqa: F401
+                          target_verdict)
 
 # Rays per pixel of the Embree soft reference's run-time-vs-error curve.
 SOFT_CURVE_RAYS = (4, 16, 64)
@@ -104,13 +104,6 @@ def embree_seconds_beyond(curve: list[dict], error: dict) -> dict:
                 _as_error(m, error[m]) < min(p[0] for p in pts):
             out[m] = min(pts)[1]
     return out
-
-
-def default_cases(size: str = "full") -> list[dict]:
-    """The built-in cases (``shadowlab/configs/bench.toml``): [{name, overrides}]."""
-    text = resources.files("shadowlab").joinpath("configs/bench.toml").read_text()
-    table = tomllib.loads(text)
-    return table[size]["case"]
 
 
 def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
@@ -194,16 +187,6 @@ def dynamic_seconds(scene, call, repeats: int) -> list[float]:
     return times
 
 
-def case_repeats(name: str | None, repeats: int) -> int:
-    """``repeats``, capped by the built-in case's own ``repeats`` (bench.toml) if it has one
-    (cases whose single run takes minutes)."""
-    for size in ("full", "ci"):
-        for c in default_cases(size):
-            if c["name"] == name and "repeats" in c:
-                return max(1, min(repeats, int(c["repeats"])))
-    return repeats
-
-
 def run_bench(configs: list, repeats: int = 5, out: str | Path | None = None,
               progress: bool = True, names: list[str] | None = None,
               note: str | None = None) -> dict:
@@ -217,6 +200,8 @@ def run_bench(configs: list, repeats: int = 5, out: str | Path | None = None,
         case = bench_case(config, reps, progress)
         case["name"] = name if names else config.source
         case["repeats"] = reps
+        if case_target(name) is not None:
+            case["target_ratio"] = case_target(name)
         results["cases"].append(case)
     results["machine"] = machine_record(before, machine_state(), note)
     if out:
@@ -237,6 +222,9 @@ def format_bench(results: dict) -> str:
                      f"(median of {case.get('repeats', results['repeats'])})")
         lines.append(f"  Embree dynamic (BVH build + trace): "
                      f"{1000 * case['reference']['dynamic_median_seconds']:.1f} ms")
+        target = case.get("target_ratio")
+        if target is not None:
+            lines.append(f"  target: at most {target:g}x Embree (static) per method")
         lines.append(f"  {'method':<16} {'run ms':>9} {'compile s':>9} {'x Embree':>9} "
                      f"{'dynamic x':>9} {'mismatch':>9} {'Gtests/s':>9}  stages (ms)")
         if "soft_reference" in case:
@@ -279,8 +267,10 @@ def format_bench(results: dict) -> str:
             stages = ", ".join(f"{k} {1000 * v:.1f}" for k, v in m["stages"].items()
                                if k != "total")
             rate = m.get("tests_per_second")
+            verdict = target_verdict(m["ratio_to_reference"], target)
             lines.append(f"  {name:<16} {1000 * m['median_seconds']:>9.1f} "
                          f"{m['compile_seconds']:>9.2f} {m['ratio_to_reference']:>9.2f} "
                          f"{m['dynamic_ratio']:>9.2f} {m['error']['mismatches']:>9} "
-                         f"{'-' if rate is None else f'{rate / 1e9:.2f}':>9}  {stages}")
+                         f"{'-' if rate is None else f'{rate / 1e9:.2f}':>9}  {stages}"
+                         + (f"  [target {verdict}]" if verdict else ""))
     return "\n".join(lines)

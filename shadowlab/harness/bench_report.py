@@ -23,6 +23,7 @@ from pathlib import Path
 
 from ..core import io
 from ..core.io import KEEP_MARKER  # noqa: F401  (re-exported: the marker of this document)
+from .bench_cases import case_target, default_cases, target_verdict
 
 
 _TITLE = "# Benchmarks"
@@ -210,11 +211,53 @@ def _cold(results: dict) -> list[str]:
     return lines + [""]
 
 
+def _targets(named_results) -> list[str]:
+    """The targets section: for each case with a target (its JSON's ``target_ratio``, or
+    the built-in case's ``target`` for files written before the bench recorded it), the
+    last of the files that holds it, and each hard method's static ratio against it."""
+    latest = {}
+    for label, results in named_results:
+        for case in results.get("cases", []):
+            name = case.get("name") or case["scene"]
+            target = case.get("target_ratio", case_target(name))
+            if target is not None:
+                latest.pop(name, None)          # re-inserted: the table follows file order
+                latest[name] = (label, case, float(target))
+    lines = ["## Targets", "",
+             "Each case with a `target` in `shadowlab/configs/bench.toml` (the largest "
+             "static ratio to the Embree pass that its issue asks of each method), from the "
+             "last of the files below that holds it. A missed row names the method's two "
+             "largest stages.", ""]
+    rows, met = [], 0
+    for name, (label, case, target) in latest.items():
+        for method, m in case["methods"].items():
+            if "skipped" in m or m.get("ratio_to_reference") is None:
+                continue
+            verdict = target_verdict(m["ratio_to_reference"], target)
+            met += verdict == "met"
+            stages = sorted(((v, k) for k, v in m.get("stages", {}).items() if k != "total"),
+                            reverse=True)[:2]
+            where = ", ".join(f"{k} {_ms(v)}" for v, k in stages) if verdict == "missed" else ""
+            rows.append(f"| `{name}` | {case['triangles']:,} | {target:g}x | `{method}` "
+                        f"| {m['ratio_to_reference']:.2f} | **{verdict}** "
+                        f"| {_ms(m['median_seconds'])} | {where} | `{label}` |")
+    if rows:
+        lines += ["| case | triangles | target | method | x Embree | verdict | median (ms) "
+                  "| largest stages (ms) | file |", "|---|---|---|---|---|---|---|---|---|"]
+        lines += rows + ["", f"Met: {met} of {len(rows)}."]
+    without = [c["name"] for c in default_cases("full")
+               if "target" in c and c["name"] not in latest]
+    if without:
+        lines += ["", "Cases with a target and no result in these files: "
+                  + ", ".join(f"`{n}`" for n in without) + "."]
+    return lines + [""]
+
+
 def render(named_results: list[tuple[str, dict]]) -> str:
     """The generated part of the document for ``[(label, bench JSON dict), ...]``
     (``shadowlab bench`` results, or ``bench --cold`` results, told apart by their
     ``kind``)."""
-    lines = [_TITLE, "", _INTRO, ""]
+    lines = [_TITLE, "", _INTRO, ""] + _targets(named_results)
     for label, results in named_results:
         lines += [f"## `{label}`", "", _provenance(results), ""]
         for line in _machine(results):
