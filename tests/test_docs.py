@@ -119,6 +119,8 @@ def test_bench_report_states_each_target_from_the_latest_file():
     assert "Met: 1 of 2." in text
     missing = next(line for line in text.splitlines() if line.startswith("Cases with a target"))
     assert "`exact-sphere_grid-1M-1024`" in missing and "exact-fuzzy-100k-1024" not in missing
+    assert "None of these files" in bench_report.render([("new.json", {"cases": [
+        case("untargeted", {"m": hard(9.0)})]})])
 
 
 def test_public_files_do_not_point_into_the_workspace():

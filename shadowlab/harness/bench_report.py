@@ -245,6 +245,9 @@ def _targets(named_results) -> list[str]:
         lines += ["| case | triangles | target | method | x Embree | verdict | median (ms) "
                   "| largest stages (ms) | file |", "|---|---|---|---|---|---|---|---|---|"]
         lines += rows + ["", f"Met: {met} of {len(rows)}."]
+    else:
+        lines.append("None of these files holds a hard method's result for a case with a "
+                     "target.")
     without = [c["name"] for c in default_cases("full")
                if "target" in c and c["name"] not in latest]
     if without:
