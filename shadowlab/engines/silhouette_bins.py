@@ -601,9 +601,7 @@ def _plane_depth_cut(grid: "SampleGrid", basis, ranks: np.ndarray, starts: np.nd
         counts[x] = np.diff(kept[np.cumsum(per_cell[:, x])], prepend=0)
         first += n
     kept_ranks = np.concatenate(pieces) if pieces else ranks[:0]
-    # the layout of _cell_lists: cell (row y, column x) is y * gx + x
-    return (kept_ranks, (np.cumsum(counts) - counts.ravel()).reshape(gx, gy).T.ravel(),
-            counts.T.ravel())
+    return (kept_ranks, *_column_layout(counts))
 
 
 def _per_cell(grid: "SampleGrid", values: np.ndarray, real: np.ndarray) -> np.ndarray:
@@ -929,9 +927,15 @@ def _cell_lists(grid: "SampleGrid", spans: list, unique: bool):
         pieces.append(r)
         counts[x] = np.bincount(y, minlength=gy)
     ranks = np.concatenate(pieces) if pieces else np.zeros(0, np.int32)
+    return (ranks, *_column_layout(counts))
+
+
+def _column_layout(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, lengths) int64 [Nc] of cell lists stored column after column, from their
+    lengths ``counts`` [gx, gy] (column-major); cell (row y, column x) is y * gx + x."""
+    gx, gy = counts.shape
     starts = (np.cumsum(counts) - counts.ravel()).reshape(gx, gy)
-    # cell (row y, column x) is y * gx + x
-    return ranks, starts.T.ravel(), counts.T.ravel()
+    return starts.T.ravel(), counts.T.ravel()
 
 
 def _count_below(values: np.ndarray, starts: np.ndarray, lengths: np.ndarray,

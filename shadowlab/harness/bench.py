@@ -200,8 +200,9 @@ def run_bench(configs: list, repeats: int = 5, out: str | Path | None = None,
         case = bench_case(config, reps, progress)
         case["name"] = name if names else config.source
         case["repeats"] = reps
-        if case_target(name) is not None:
-            case["target_ratio"] = case_target(name)
+        target = case_target(name)
+        if target is not None:
+            case["target_ratio"] = target
         results["cases"].append(case)
     results["machine"] = machine_record(before, machine_state(), note)
     if out:

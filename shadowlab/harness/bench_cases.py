@@ -6,15 +6,22 @@ importing the methods.
 
 from __future__ import annotations
 
+import copy
+import functools
 import tomllib
 from importlib import resources
 
 
+@functools.lru_cache(maxsize=1)
+def _table() -> dict:
+    """bench.toml, parsed once per process (it ships with the package)."""
+    return tomllib.loads(resources.files("shadowlab").joinpath("configs/bench.toml").read_text())
+
+
 def default_cases(size: str = "full") -> list[dict]:
-    """The built-in cases (``shadowlab/configs/bench.toml``): [{name, overrides}]."""
-    text = resources.files("shadowlab").joinpath("configs/bench.toml").read_text()
-    table = tomllib.loads(text)
-    return table[size]["case"]
+    """The built-in cases (``shadowlab/configs/bench.toml``): [{name, overrides}] (a
+    copy: the caller may change it)."""
+    return copy.deepcopy(_table()[size]["case"])
 
 
 def builtin_case(name: str | None) -> dict:

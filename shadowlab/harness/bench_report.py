@@ -219,7 +219,9 @@ def _targets(named_results) -> list[str]:
     for label, results in named_results:
         for case in results.get("cases", []):
             name = case.get("name") or case["scene"]
-            target = case.get("target_ratio", case_target(name))
+            target = case.get("target_ratio")
+            if target is None:
+                target = case_target(name)
             if target is not None:
                 latest.pop(name, None)          # re-inserted: the table follows file order
                 latest[name] = (label, case, float(target))
