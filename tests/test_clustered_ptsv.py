@@ -184,6 +184,16 @@ def test_keys_masks_and_boxes_against_loops():
                          **_tiles(keys, table))
             for lvl, (a, b) in enumerate(zip(h.masks, ch.masks_numpy(tree, keys))):
                 np.testing.assert_array_equal(np.asarray(a), b, err_msg=f"level {lvl}")
+            # compact entries carry their keys: the inverse of the pointers
+            for lvl in range(1, tree.levels + 1):
+                if h.keys is None:
+                    assert storage == "full"
+                    continue
+                ptr, ek = np.asarray(h.ptr[lvl - 1]), np.asarray(h.keys[lvl - 1])
+                live = np.flatnonzero(ptr >= 0)
+                assert len(live) == int(h.counts[lvl - 1]) > 0
+                np.testing.assert_array_equal(ek[ptr[live]], live, err_msg=f"level {lvl}")
+                assert not ek[len(live):].any()
             # boxes (leaf level and one inner level) against a loop over samples
             c = np.asarray(coords)
             for lvl in (tree.levels, 2):

@@ -318,6 +318,9 @@ class Hierarchy:
             "full" capacity_l = nodes(l), for "compact" min(nodes(l), samples).
         smin: per level 1..D, float [capacity_l], the minimum bias scale of the node's
             samples.
+        keys: per level 1..D, uint32 [capacity_l], the key of each listed node (the
+            inverse of :attr:`ptr`; rows past the level's count are 0), for "compact";
+            None for "full", whose row index is the key.
     """
 
     tree: TreeLayout
@@ -328,6 +331,7 @@ class Hierarchy:
     lo: tuple
     hi: tuple
     smin: tuple
+    keys: tuple | None = None
 
     @property
     def clusters(self) -> int:
@@ -559,8 +563,9 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, val
     counts from them (:func:`_masks_from_leaves`), compact storage's starts top-down
     (:func:`_starts`). Leaf boxes are reduced from the samples (scatter-min / max to
     each sample's compact index or, for "full", its key), inner boxes from their
-    children's boxes; compact storage carries each entry's key to find its parent, and
-    its inner levels and padding loop over the existing entries only.
+    children's boxes; compact storage carries each entry's key to find its parent (and
+    returns them: :attr:`Hierarchy.keys`), and its inner levels and padding loop over the
+    existing entries only.
     """
     d = tree.levels
     dtype = coords.dtype
@@ -568,7 +573,7 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, val
     leaves, n_leaves = _tile_leaves(tile_keys, tile_valid, list_cap)
     masks, counts = _masks_from_leaves(tree, leaves, n_leaves)
     counts = tuple(counts)
-    los, his, smins = [None] * d, [None] * d, [None] * d
+    los, his, smins, ekeys = [None] * d, [None] * d, [None] * d, None
     if storage == "full":
         starts = None
         idx = jnp.where(valid, keys.astype(jnp.int32), caps[d - 1])
@@ -596,6 +601,7 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, val
             return ekey.at[at].set(key, mode="drop")
 
         ekey = _over(n_leaves, list_cap, leaf_keys, jnp.zeros(cap, jnp.uint32))
+        ekeys = [None] * (d - 1) + [ekey]
         for level in range(d - 1, 0, -1):
             cap = caps[level - 1]
 
@@ -615,9 +621,11 @@ def _build(tree: TreeLayout, storage: str, caps: tuple, list_cap: int, keys, val
                 counts[level], caps[level], body,
                 (jnp.full((cap, 3), big), jnp.full((cap, 3), -big), jnp.full((cap,), big),
                  jnp.zeros(cap, jnp.uint32)))
+            ekeys[level - 1] = ekey
         padded = [_pad_live(lo, hi, n) for lo, hi, n in zip(los, his, counts)]
     return (tuple(masks), counts, None if starts is None else tuple(starts),
-            tuple(p[0] for p in padded), tuple(p[1] for p in padded), tuple(smins))
+            tuple(p[0] for p in padded), tuple(p[1] for p in padded), tuple(smins),
+            None if ekeys is None else tuple(ekeys))
 
 
 def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact", *,
@@ -645,9 +653,10 @@ def build(tree: TreeLayout, keys, valid, coords, scale, storage: str = "compact"
         caps = tuple(tree.nodes(level) for level in range(1, tree.levels + 1))
     else:
         caps = tuple(min(tree.nodes(level), s) for level in range(1, tree.levels + 1))
-    masks, counts, start, lo, hi, smin = _build(tree, storage, caps, list_cap, keys, valid,
-                                                coords, scale, tile_keys, tile_valid)
-    return Hierarchy(tree, masks, counts, storage, start, lo, hi, smin)
+    masks, counts, start, lo, hi, smin, entry_keys = _build(tree, storage, caps, list_cap,
+                                                            keys, valid, coords, scale,
+                                                            tile_keys, tile_valid)
+    return Hierarchy(tree, masks, counts, storage, start, lo, hi, smin, entry_keys)
 
 
 def masks_numpy(tree: TreeLayout, keys: np.ndarray) -> list[np.ndarray]:
