@@ -252,19 +252,20 @@ def test_a_frontier_whose_children_int32_cannot_count_is_refused():
 
 def test_windowed_search_equals_searchsorted():
     """The compaction's search of a chunk of ascending slots equals ``searchsorted(...,
-    side="right")`` everywhere: empty entries (equal prefix sums), slots past the total
-    (into the int32-max padding), and a full bucket whose last sum is the total."""
+    side="right")`` over the tested entries everywhere: empty entries (equal prefix
+    sums), slots past the total, a full bucket whose last sum is the total, and leftover
+    values past the tested entries (which it must not read)."""
     rng = np.random.default_rng(3)
     search = jax.jit(tv._search_right)
     for _ in range(200):
         cap = int(rng.choice([8, 64, 4096]))
         n = int(rng.integers(0, cap + 1))
         pop = rng.integers(0, 4, n) * (rng.random(n) < 0.6)
-        end = np.full(cap, np.iinfo(np.int32).max, np.int32)
+        end = rng.integers(-5, 50, cap).astype(np.int32)           # leftovers past n
         end[:n] = np.cumsum(pop)
         q = (int(rng.integers(0, pop.sum() + 5)) + np.arange(16)).astype(np.int32)
-        np.testing.assert_array_equal(np.asarray(search(jnp.asarray(end), jnp.asarray(q))),
-                                      np.searchsorted(end, q, side="right"))
+        got = search(jnp.asarray(end), jnp.asarray(q), jnp.int32(n))
+        np.testing.assert_array_equal(np.asarray(got), np.searchsorted(end[:n], q, side="right"))
 
 
 def test_compaction_keeps_entry_major_child_minor_order():
@@ -274,15 +275,16 @@ def test_compaction_keeps_entry_major_child_minor_order():
     words[rng.random(cap) < 0.5] = 0
     n = 50                                                  # entries past n are padding
     pop = np.array([bin(int(w)).count("1") for w in words[:n]])
-    end = np.full(cap, np.iinfo(np.int32).max, np.int32)
+    end = rng.integers(0, 40, cap).astype(np.int32)        # leftovers past n, never read
     end[:n] = np.cumsum(pop)
     item = np.arange(cap, dtype=np.int32) + 100
     node = rng.integers(0, 1000, cap).astype(np.uint32)
     job = np.arange(cap, dtype=np.int32) * 3
     total = int(pop.sum())
     assert total > cap                                      # truncated at cap
-    ni, nn, nj = tv.compact_children(jnp.asarray(words), jnp.asarray(end), jnp.int32(total),
-                                     jnp.asarray(item), jnp.asarray(node), jnp.asarray(job))
+    ni, nn, nj = tv.compact_children(jnp.asarray(words), jnp.asarray(end), jnp.int32(n),
+                                     jnp.int32(total), jnp.asarray(item), jnp.asarray(node),
+                                     jnp.asarray(job))
     want = [(item[j], (int(node[j]) << 5) | c, job[j]) for j in range(n) for c in range(32)
             if (int(words[j]) >> c) & 1][:cap]
     np.testing.assert_array_equal(np.asarray(ni), [w[0] for w in want])

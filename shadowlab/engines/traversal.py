@@ -33,13 +33,16 @@ then retries with a bigger bucket (2x at least), so nothing is ever truncated si
 The first try is sized from the tests' ``frontier_per_job`` (the peak frontier a job
 typically grows to, a prior that only sets the first bucket), so that a scene's first
 call usually needs no retry, which would cost a compile and a partial run.
-A bucket is not free beyond ``n``: every level clears and fills bucket-sized arrays
-(the children's words and prefix sums, the next frontier), so a bucket 32x too large
-made ``ptsv``'s traversal 3.6x slower (sphere_grid 99k after fuzzy 100k in one process,
-373 -> 1,338 ms). The caller passes a dict (``buckets``) that remembers, per (tests,
-options), the buckets that sufficed; they only grow, so later frames of a scene reuse
-the compiled kernel without retries. Methods keep one such dict per scene, so that one
-scene's bucket never slows another's.
+The work of a level follows ``n``, not the bucket: the loops' trip counts follow the
+frontier, and the frontier's arrays (:class:`Scratch`) are allocated once and reused,
+never cleared (entries past ``n`` are leftovers the node test sees as padding). Until
+2026-12-07 every level cleared and filled bucket-sized arrays, so a bucket 32x too
+large made ``ptsv``'s traversal 3.6x slower (sphere_grid 99k after fuzzy 100k in one
+process, 373 -> 1,338 ms); a larger bucket now costs memory (32 bytes per entry) only.
+The caller passes a dict (``buckets``) that remembers, per (tests, options), the
+buckets that sufficed; they only grow, so later frames of a scene reuse the compiled
+kernel without retries. Methods keep one such dict per scene, so that one scene's
+bucket never holds memory for another.
 
 Waves and pruning: jobs run in waves of ``wave`` jobs in job order. With ``prune`` the
 node test sees ``accepted`` as it was when the wave started (the accepts of earlier
@@ -57,9 +60,10 @@ leaf visits (leaf jobs), the largest frontier (entries) and per-job iterations.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -131,23 +135,73 @@ def child_words(*masks):
     return jax.lax.reduce(ops, zero, lambda a, b: tuple(x | y for x, y in zip(a, b)), (1,))
 
 
-def _expand_level(tests, ctx, level, row_offsets, st, acc_seen, item, node, job, n):
-    """Expand a frontier (item, node, job) [cap], n valid, at ``level`` (traced): test the
-    children of each entry in chunks, add the counters, record accepts (a row
+class Scratch(NamedTuple):
+    """The buffers one traversal pass works in, all of the frontier capacity [cap] and
+    allocated once per pass (not per level or wave, whose work follows the frontier's
+    true size ``n``): the frontier (item int32, node uint32, job int32), a copy of it
+    that the compaction reads while it writes the next frontier over the first, and a
+    level's children words (uint32) and their prefix sums (int32). Entries past ``n`` (a
+    frontier) or past the tested chunks (words, sums) are left over from earlier levels
+    and never read as data (the node test sees them as padding)."""
+
+    item: Any
+    node: Any
+    job: Any
+    read_item: Any
+    read_node: Any
+    read_job: Any
+    words: Any
+    end: Any
+
+
+#: scratch buffers kept between passes, by capacity, at most SCRATCH_KEEP sets (32 bytes
+#: per frontier entry each: 512 MB at 16M entries). A pass takes its set out while it
+#: runs (so concurrent passes never share one) and donates it to the kernel, which hands
+#: it back: no allocation, where clearing a new set cost about 90 ms at 16M entries
+#: (``ptsv`` on fuzzy 100k, 1024x1024, after the levels stopped clearing their own).
+#: Only memory is reused: nothing computed survives a pass.
+SCRATCH_KEEP = 2
+_SCRATCH: collections.OrderedDict = collections.OrderedDict()
+
+
+def _take_scratch(cap: int) -> Scratch:
+    kept = _SCRATCH.pop(cap, None)
+    if kept is not None:
+        return kept
+    return Scratch(*(jnp.zeros(cap, t) for t in (jnp.int32, jnp.uint32, jnp.int32, jnp.int32,
+                                                 jnp.uint32, jnp.int32, jnp.uint32,
+                                                 jnp.int32)))
+
+
+def _keep_scratch(cap: int, scratch: Scratch) -> None:
+    _SCRATCH[cap] = scratch
+    while len(_SCRATCH) > SCRATCH_KEEP:
+        _SCRATCH.popitem(last=False)
+
+
+def release_scratch() -> None:
+    """Free the traversal's kept scratch buffers (see :data:`SCRATCH_KEEP`)."""
+    _SCRATCH.clear()
+
+
+def _expand_level(tests, ctx, level, row_offsets, st, acc_seen, buf: Scratch, n):
+    """Expand the frontier in ``buf`` (n valid entries, n <= cap) at ``level`` (traced):
+    test the children of each entry in chunks, add the counters, record accepts (a row
     scatter-max into ``st["accepted"]``) and iterations, then compact the intersected
-    children into [cap]. Returns the state and the next frontier with its true size
-    (> cap: overflow, retried by the host)."""
-    cap = item.shape[0]
+    children into the frontier's arrays (the chunks read are copied aside first, so the
+    compaction can overwrite them). Returns the state, the buffers and the next
+    frontier's true size (> cap: overflow, retried by the host)."""
+    cap = buf.item.shape[0]
     e = min(cap, EXPAND_CHUNK)
     iters_cap = st["iters"].shape[0]
     row0 = row_offsets[level]
 
     def body(i, carry):
-        words, end, total, counts, acc, iters = carry
+        words, end, total, counts, acc, iters, ri, rn, rj = carry
         s = i * e
-        t = jax.lax.dynamic_slice_in_dim(item, s, e)
-        nd = jax.lax.dynamic_slice_in_dim(node, s, e)
-        jb = jax.lax.dynamic_slice_in_dim(job, s, e)
+        t = jax.lax.dynamic_slice_in_dim(buf.item, s, e)
+        nd = jax.lax.dynamic_slice_in_dim(buf.node, s, e)
+        jb = jax.lax.dynamic_slice_in_dim(buf.job, s, e)
         valid = s + jnp.arange(e) < n
         accept_w, w, increment = tests.children(ctx, level, t, nd, valid, acc_seen)
         counts = wide_add(counts, increment)
@@ -158,28 +212,33 @@ def _expand_level(tests, ctx, level, row_offsets, st, acc_seen, item, node, job,
         chunk_end = total + jnp.cumsum(jax.lax.population_count(w).astype(jnp.int32))
         words = jax.lax.dynamic_update_slice_in_dim(words, w, s, 0)
         end = jax.lax.dynamic_update_slice_in_dim(end, chunk_end, s, 0)
-        return words, end, chunk_end[-1], counts, acc, iters
+        ri, rn, rj = (jax.lax.dynamic_update_slice_in_dim(r, x, s, 0)
+                      for r, x in ((ri, t), (rn, nd), (rj, jb)))
+        return words, end, chunk_end[-1], counts, acc, iters, ri, rn, rj
 
-    big = jnp.iinfo(jnp.int32).max
-    words, end, total, counts, acc, iters = jax.lax.fori_loop(
-        0, (n + e - 1) // e, body,
-        (jnp.zeros(cap, jnp.uint32), jnp.full(cap, big, jnp.int32), jnp.int32(0),
-         st["counts"], st["accepted"], st["iters"]))
+    chunks = (n + e - 1) // e
+    words, end, total, counts, acc, iters, ri, rn, rj = jax.lax.fori_loop(
+        0, chunks, body, (buf.words, buf.end, jnp.int32(0), st["counts"], st["accepted"],
+                          st["iters"], buf.read_item, buf.read_node, buf.read_job))
     st = dict(st, counts=counts, iters=iters, accepted=acc)
-    nitem, nnode, njob = compact_children(words, end, total, item, node, job)
-    return st, nitem, nnode, njob, total
+    item, node, job = compact_children(words, end, chunks * e, total, ri, rn, rj,
+                                       out=(buf.item, buf.node, buf.job))
+    return st, Scratch(item, node, job, ri, rn, rj, words, end), total
 
 
-def compact_children(words, end, total, item, node, job):
+def compact_children(words, end, length, total, item, node, job, out=None):
     """Stream compaction of the set children of a frontier, entry-major, child-minor.
 
     Args:
         words: uint32 [cap], bit c set if child c of entry j goes on; end: int32 [cap],
-            inclusive prefix sums of the popcounts (int32 max past the last tested
-            entry); total: int32, the number of set bits; item, node, job: [cap].
+            inclusive prefix sums of the popcounts over the entries [0, length) (later
+            entries are not read); total: int32, the number of set bits; item, node,
+            job: [cap]. out: the three [cap] arrays to write into (None: new zeros).
     Returns:
         item int32 [cap], node uint32 [cap] (the child keys ``(node << 5) | c``) and job
-        int32 [cap] of the first min(total, cap) set bits; later slots are zero.
+        int32 [cap]: ``out`` with its first min(total, cap) entries replaced by the set
+        bits', and entries up to the end of their last chunk of SELECT_CHUNK by
+        leftovers.
     """
     cap = item.shape[0]
     sc = min(cap, SELECT_CHUNK)
@@ -187,7 +246,7 @@ def compact_children(words, end, total, item, node, job):
     def select(i, carry):
         ntri, nnode, njob = carry
         q = i * sc + jnp.arange(sc, dtype=jnp.int32)
-        j = jnp.minimum(_search_right(end, q), cap - 1).astype(jnp.int32)
+        j = jnp.minimum(_search_right(end, q, length), cap - 1).astype(jnp.int32)
         r = q - jnp.where(j > 0, end[jnp.maximum(j - 1, 0)], 0)
         w = words[j]
         pos = jnp.zeros(sc, jnp.uint32)
@@ -201,32 +260,54 @@ def compact_children(words, end, total, item, node, job):
         njob = jax.lax.dynamic_update_slice_in_dim(njob, job[j], i * sc, 0)
         return ntri, nnode, njob
 
+    if out is None:
+        out = (jnp.zeros(cap, jnp.int32), jnp.zeros(cap, jnp.uint32), jnp.zeros(cap, jnp.int32))
     m = jnp.minimum(total, cap)
-    return jax.lax.fori_loop(
-        0, (m + sc - 1) // sc, select,
-        (jnp.zeros(cap, jnp.int32), jnp.zeros(cap, jnp.uint32), jnp.zeros(cap, jnp.int32)))
+    return jax.lax.fori_loop(0, (m + sc - 1) // sc, select, tuple(out))
 
 
-def _search_right(end, q):
-    """``jnp.searchsorted(end, q, side="right")`` for ascending q [C] (int32, end int32
-    [cap] ascending): the same indices, found in the window between the first and the
-    last query's index. A binary search over the whole array probes memory far apart
-    (cache misses over a frontier of millions of entries); the window of one chunk of
-    output slots spans a few thousand entries, and its search needs bit_length(window)
-    steps instead of log2(cap)."""
-    lo = jnp.searchsorted(end, q[0], side="right").astype(jnp.int32)
-    hi = jnp.searchsorted(end, q[-1], side="right").astype(jnp.int32)
+def _bisect(end, q, lo, hi, steps):
+    """The first index j in [lo, hi] with end[j] > q (hi: none in [lo, hi)), for end
+    ascending on [lo, hi), in ``steps`` >= bit_length(hi - lo) halvings (q, lo, hi of one
+    shape)."""
     last = end.shape[0] - 1
 
-    def halve(_, bounds):               # invariant: the answer lies in [lo, hi]
+    def halve(_, bounds):               # invariant: the answer lies in [a, b]
         a, b = bounds
-        mid = (a + b) // 2
-        go = end[jnp.minimum(mid, last)] <= q
+        mid = (a + b) // 2              # < b unless a == b (then end[b] is not read)
+        go = (a < b) & (end[jnp.minimum(mid, last)] <= q)
         return jnp.where(go, mid + 1, a), jnp.where(go, b, mid)
 
-    steps = 32 - jax.lax.clz(hi - lo)                 # bit_length of the window
-    a, _ = jax.lax.fori_loop(0, steps, halve, (jnp.full(q.shape, lo), jnp.full(q.shape, hi)))
+    a, _ = jax.lax.fori_loop(0, steps, halve, (lo, hi))
+    return a
+
+
+def _search_right(end, q, length):
+    """``jnp.searchsorted(end[:length], q, side="right")`` for ascending q [C] (int32, end
+    int32 [cap] ascending on [0, length), not read past it): the same indices, found in
+    the window between the first and the last query's index. A binary search over the
+    whole array probes memory far apart (cache misses over a frontier of millions of
+    entries); the window of one chunk of output slots spans a few thousand entries, and
+    its search needs bit_length(window) steps instead of log2(cap)."""
+    length = jnp.asarray(length, jnp.int32)
+    zero = jnp.zeros((), jnp.int32)
+    steps = 32 - jax.lax.clz(length)
+    lo = _bisect(end, q[0], zero, length, steps)
+    hi = _bisect(end, q[-1], zero, length, steps)
+    a = _bisect(end, q, jnp.full(q.shape, lo), jnp.full(q.shape, hi), 32 - jax.lax.clz(hi - lo))
     return jnp.minimum(a, hi)
+
+
+def _copy_chunks(dst, src, offset, n, chunk):
+    """The arrays ``dst`` with [offset, offset + n) set from ``src``'s [0, n), in chunks of
+    ``chunk`` entries (the work follows n; up to chunk - 1 entries past n are copied
+    too, so dst needs that much room past offset + n, and src as much past n)."""
+    def body(i, d):
+        return tuple(jax.lax.dynamic_update_slice_in_dim(
+            x, jax.lax.dynamic_slice_in_dim(y, i * chunk, chunk), offset + i * chunk, 0)
+            for x, y in zip(d, src))
+
+    return jax.lax.fori_loop(0, (n + chunk - 1) // chunk, body, tuple(dst))
 
 
 @functools.lru_cache(maxsize=64)
@@ -239,76 +320,94 @@ def pass_kernel(tests: NodeTests, prune: bool, level0: int, stop: int, cap: int,
     times short.
 
     The returned function takes (data, row_offsets int32 [D], jobs_item int32 [J],
-    jobs_node uint32 [J], n_jobs, wave_size, accepted bool [rows, 32], leaf_state), J >=
-    (waves - 1) * wave_size + cap, and returns the state dict: accepted, leaf, iters
-    int32 [J] (per job), counts int32 [2, K], need int32 [levels of the pass + 1] (largest
-    frontier per level: > cap means overflow), fmax, leaf_visits [2], out_n [2] and the
-    pushed entries out_item / out_node [out_cap + cap]. ``counts``, ``leaf_visits`` and
-    ``out_n`` are two-word totals (``core.capacity.wide_add``: they never wrap).
+    jobs_node uint32 [J], n_jobs, wave_size, accepted bool [rows, 32], leaf_state,
+    scratch), J >= n_jobs + EXPAND_CHUNK, wave_size <= cap, ``scratch`` a
+    :class:`Scratch` of capacity cap (donated; its contents do not matter), and returns
+    (state, scratch). The state is a dict: accepted, leaf,
+    iters int32 [J] (per job), counts int32 [2, K], need int32 [levels of the pass + 1]
+    (largest frontier per level: > cap means overflow), fmax, leaf_visits [2], out_n [2]
+    and the pushed entries out_item / out_node [out_cap + EXPAND_CHUNK]. ``counts``,
+    ``leaf_visits`` and ``out_n`` are two-word totals (``core.capacity.wide_add``: they
+    never wrap).
+
+    Every loop's trip count follows the frontier's true size, not the capacity, and
+    nothing capacity-sized is cleared: a capacity twice as large cost ``ptsv`` on fuzzy
+    100k (1024x1024) about 400 ms more (of 1.2 s) when each level cleared and wrote
+    capacity-sized arrays.
     """
     d = tests.levels
     last = min(stop, d)
 
     def run(data, row_offsets, jobs_item, jobs_node, n_jobs, wave_size, accepted,
-            leaf_state):
+            leaf_state, scratch):
         ctx = tests.prepare(data)
         iters_cap = jobs_item.shape[0]
+        e = min(cap, EXPAND_CHUNK)
         st = dict(accepted=accepted, leaf=leaf_state,
                   iters=jnp.zeros(iters_cap, jnp.int32),
                   counts=jnp.zeros((2, len(tests.counters)), jnp.int32),
                   need=jnp.zeros(last - level0 + 1, jnp.int32), fmax=jnp.int32(0),
                   leaf_visits=jnp.zeros(2, jnp.int32), out_n=jnp.zeros(2, jnp.int32),
-                  out_item=jnp.zeros(out_cap + cap, jnp.int32),
-                  out_node=jnp.zeros(out_cap + cap, jnp.uint32))
+                  out_item=jnp.zeros(out_cap + e if stop <= d else 0, jnp.int32),
+                  out_node=jnp.zeros(out_cap + e if stop <= d else 0, jnp.uint32))
 
-        def wave(w, st):
+        def wave(w, carry):
+            st, buf = carry
             start = w * wave_size
-            item = jax.lax.dynamic_slice_in_dim(jobs_item, start, cap)
-            node = jax.lax.dynamic_slice_in_dim(jobs_node, start, cap)
-            job = start + jnp.arange(cap, dtype=jnp.int32)
             n = jnp.minimum(n_jobs - start, wave_size).astype(jnp.int32)
+
+            def load(i, b):                      # the wave's jobs into the frontier
+                s = i * e
+                return b._replace(
+                    item=jax.lax.dynamic_update_slice_in_dim(
+                        b.item, jax.lax.dynamic_slice_in_dim(jobs_item, start + s, e), s, 0),
+                    node=jax.lax.dynamic_update_slice_in_dim(
+                        b.node, jax.lax.dynamic_slice_in_dim(jobs_node, start + s, e), s, 0),
+                    job=jax.lax.dynamic_update_slice_in_dim(
+                        b.job, start + s + jnp.arange(e, dtype=jnp.int32), s, 0))
+
+            buf = jax.lax.fori_loop(0, (n + e - 1) // e, load, buf)
             # pruning sees the accepts of earlier waves only (a level's accepts come from
             # its own expansion, so the wave's start state is the level's start state)
             acc_seen = st["accepted"] if prune else None
 
             def level_body(level, carry):
-                st, item, node, job, n = carry
+                st, buf, n = carry
                 li = level - level0
                 st = dict(st, fmax=jnp.maximum(st["fmax"], n), need=st["need"].at[li].max(n))
-                st, item, node, job, n = _expand_level(tests, ctx, level, row_offsets, st,
-                                                       acc_seen, item, node, job,
-                                                       jnp.minimum(n, cap))
-                return st, item, node, job, n
+                return _expand_level(tests, ctx, level, row_offsets, st, acc_seen, buf,
+                                     jnp.minimum(n, cap))
 
-            st, item, node, job, n = jax.lax.fori_loop(level0, last, level_body,
-                                                       (st, item, node, job, n))
+            st, buf, n = jax.lax.fori_loop(level0, last, level_body, (st, buf, n))
             st = dict(st, fmax=jnp.maximum(st["fmax"], n),
                       need=st["need"].at[last - level0].max(n))
             n = jnp.minimum(n, cap)
             if stop <= d:                                    # pass 1 of two: push jobs
                 o = wide_min(st["out_n"], out_cap)
-                return dict(st, out_n=wide_add(st["out_n"], n),
-                            out_item=jax.lax.dynamic_update_slice_in_dim(st["out_item"], item,
-                                                                         o, 0),
-                            out_node=jax.lax.dynamic_update_slice_in_dim(st["out_node"], node,
-                                                                         o, 0))
+                out_item, out_node = _copy_chunks((st["out_item"], st["out_node"]),
+                                                  (buf.item, buf.node), o, n, e)
+                return dict(st, out_n=wide_add(st["out_n"], n), out_item=out_item,
+                            out_node=out_node), buf
             chunk = min(cap, LEAF_CHUNK)                     # leaf jobs
-            iters = st["iters"].at[jnp.where(jnp.arange(cap) < n, job, iters_cap)].add(
-                1, mode="drop")
 
             def leaf_body(i, carry):
-                t = jax.lax.dynamic_slice_in_dim(item, i * chunk, chunk)
-                k = jax.lax.dynamic_slice_in_dim(node, i * chunk, chunk)
+                leaf, iters = carry
+                t = jax.lax.dynamic_slice_in_dim(buf.item, i * chunk, chunk)
+                k = jax.lax.dynamic_slice_in_dim(buf.node, i * chunk, chunk)
+                jb = jax.lax.dynamic_slice_in_dim(buf.job, i * chunk, chunk)
                 ok = i * chunk + jnp.arange(chunk) < n
-                return tests.leaves(ctx, t, k, ok, carry)
+                iters = iters.at[jnp.where(ok, jb, iters_cap)].add(1, mode="drop")
+                return tests.leaves(ctx, t, k, ok, leaf), iters
 
-            leaf = jax.lax.fori_loop(0, (n + chunk - 1) // chunk, leaf_body, st["leaf"])
-            return dict(st, iters=iters, leaf_visits=wide_add(st["leaf_visits"], n), leaf=leaf)
+            leaf, iters = jax.lax.fori_loop(0, (n + chunk - 1) // chunk, leaf_body,
+                                            (st["leaf"], st["iters"]))
+            return dict(st, iters=iters, leaf_visits=wide_add(st["leaf_visits"], n),
+                        leaf=leaf), buf
 
         n_waves = (n_jobs + wave_size - 1) // wave_size
-        return jax.lax.fori_loop(0, n_waves, wave, st)
+        return jax.lax.fori_loop(0, n_waves, wave, (st, scratch))
 
-    return jax.jit(run)
+    return jax.jit(run, donate_argnums=(8,))
 
 
 def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_item: np.ndarray,
@@ -341,19 +440,19 @@ def run_pass(tests: NodeTests, data, row_offsets, accepted, leaf_state, jobs_ite
         check_int32(32 * cap, f"traversal children of a {cap:,}-entry frontier", remedy)
         check_int32(out_cap + cap + (2 << WIDE_LOW_BITS), "traversal pass-2 jobs",
                     "use passes=1 or a smaller expand_level, or render fewer samples")
-        n_waves = -(-total // wave_size)
-        length = bucket((n_waves - 1) * wave_size + cap, minimum=MIN_FRONTIER)
-        check_int32(max(length, n_jobs + wave_size), "traversal job list", remedy)
+        length = bucket(n_jobs + EXPAND_CHUNK, minimum=MIN_FRONTIER)
+        check_int32(length, "traversal job list", remedy)
         jt = np.zeros(length, np.int32)
         jn = np.zeros(length, np.uint32)
         jt[:n_jobs], jn[:n_jobs] = jobs_item, jobs_node
         kern = pass_kernel(tests, prune, level0, stop, cap, out_cap)
         args = (data, row_offsets, jnp.asarray(jt), jnp.asarray(jn), jnp.int32(n_jobs),
-                jnp.int32(wave_size), accepted, leaf_state)
+                jnp.int32(wave_size), accepted, leaf_state, _take_scratch(cap))
         exe, dt = compiled(kern, *args)
         if timer is not None:
             timer.times[compile_stage] = timer.times.get(compile_stage, 0.0) + dt
-        st = exe(*args)
+        st, scratch = exe(*args)
+        _keep_scratch(cap, scratch)
         return st, (int(np.asarray(st["need"]).max()), int(wide_total(st["out_n"])))
 
     def grow_frontier(need, cap):
