@@ -250,22 +250,30 @@ def test_a_frontier_whose_children_int32_cannot_count_is_refused():
         _traverse(qa, qb, masks, may, 1, 1, None, False, buckets)
 
 
-def test_windowed_search_equals_searchsorted():
-    """The compaction's search of a chunk of ascending slots equals ``searchsorted(...,
-    side="right")`` over the tested entries everywhere: empty entries (equal prefix
-    sums), slots past the total, a full bucket whose last sum is the total, and leftover
-    values past the tested entries (which it must not read)."""
+@pytest.mark.parametrize("size", [8, 64])
+def test_slot_owners_equal_searchsorted(size):
+    """The compaction's owner of each output slot below the total equals
+    ``searchsorted(end[:n], slot, side="right")``: empty entries (equal prefix sums),
+    long runs of them (a window of entries longer than the chunk), entries with up to 32
+    children (a chunk inside one entry), chunks that end past the total, a full bucket,
+    and leftover values past the tested entries, which it must not read. Slots past the
+    total get an entry below n."""
     rng = np.random.default_rng(3)
-    search = jax.jit(tv._search_right)
-    for _ in range(200):
-        cap = int(rng.choice([8, 64, 4096]))
-        n = int(rng.integers(0, cap + 1))
-        pop = rng.integers(0, 4, n) * (rng.random(n) < 0.6)
+    owners = jax.jit(tv._slot_owners, static_argnums=2)
+    for _ in range(150):
+        cap = int(rng.choice([8, 64, 512]))
+        n = int(rng.integers(1, cap + 1))
+        pop = rng.integers(0, 33, n) * (rng.random(n) < rng.choice([0.05, 0.6, 1.0]))
         end = rng.integers(-5, 50, cap).astype(np.int32)           # leftovers past n
         end[:n] = np.cumsum(pop)
-        q = (int(rng.integers(0, pop.sum() + 5)) + np.arange(16)).astype(np.int32)
-        got = search(jnp.asarray(end), jnp.asarray(q), jnp.int32(n))
-        np.testing.assert_array_equal(np.asarray(got), np.searchsorted(end[:n], q, side="right"))
+        total = int(end[n - 1])
+        for base in range(0, total, size):
+            got = np.asarray(owners(jnp.asarray(end), jnp.int32(base), size, jnp.int32(n)))
+            q = base + np.arange(size)
+            live = q < total
+            np.testing.assert_array_equal(got[live],
+                                          np.searchsorted(end[:n], q[live], side="right"))
+            assert np.all((got >= 0) & (got < n))
 
 
 def test_compaction_keeps_entry_major_child_minor_order():
