@@ -609,3 +609,41 @@ def test_frontier_buckets_are_remembered_per_scene(monkeypatch):
     assert a1 is a2 and b is not a1 and not a_before and not b_before
     assert max(b_after.values()) > max(a_after.values())     # the big scene grew its own
     assert a2_before == a_after                              # the small one kept its own
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_reused_setup_gives_the_same_result(precision):
+    """reuse_setup keeps the light's triangle setup (face culling, world-space planes):
+    the next call with the same scene, light, precision and culling reuses it, on either
+    tree, and equals a run that sets up; another light or culling side, or a dropped
+    cache, sets up anew."""
+    from shadowlab.scene import caches
+
+    scene, gbuf, light, _ = _setup("gate")          # a scene of its own: nothing cached
+    kw = dict(precision=precision, shadow_eps=1e-5, bias="receiver")
+
+    def run(kind, lamp=light, **o):
+        return run_traversal_method(scene, gbuf, lamp, kind=kind, **kw, **o)
+
+    def same(a, b):
+        assert np.array_equal(a.lit, b.lit)
+        for k in a.counters:
+            assert np.array_equal(np.asarray(a.counters[k]), np.asarray(b.counters[k])), k
+
+    for kind in ("cluster", "ptsv"):
+        fresh, _ = run(kind)
+        first, d1 = run(kind, reuse_setup=True)
+        again, d2 = run(kind, reuse_setup=True)
+        assert d2["planes"] is d1["planes"] and d2["scene"] is d1["scene"]
+        assert again.counters["front_face_culled"] == fresh.counters["front_face_culled"] > 0
+        same(fresh, first)
+        same(fresh, again)
+    _, d3 = run("ptsv", reuse_setup=True, cull_side="facing")
+    assert d3["planes"] is not d1["planes"]
+    moved = sl.PointLight(position=np.asarray(light.position) + [0.5, 0.0, 0.0])
+    other, d4 = run("cluster", moved, reuse_setup=True)
+    assert d4["planes"] is not d3["planes"]
+    same(run("cluster", moved)[0], other)
+    assert run("cluster", moved, reuse_setup=True)[1]["planes"] is d4["planes"]
+    caches.drop(scene)
+    assert run("cluster", moved, reuse_setup=True)[1]["planes"] is not d4["planes"]

@@ -71,6 +71,10 @@ TOP_JOBS = 1024
 #: per scene: the traversal's frontier buckets that sufficed (``engines.traversal``); a
 #: bucket grown for one scene would slow the traversal of every other
 _BUCKETS = per_scene_cache()
+#: per frame-local scene: (key, (casters' scene, face-culled count, planes, valid)) of the
+#: latest light set up with ``reuse_setup`` (``scene.caches.drop`` forgets it, as it
+#: forgets Embree's BVH)
+_SETUPS = per_scene_cache()
 
 
 # --------------------------------------------------------------------------- setup
@@ -373,7 +377,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
                          cull_side: str = "averted", bias_reject: bool = False,
                          leaf_samples: str = "tile", z_bits: int = 0,
                          depth_slices: str = "clamp", tree_samples: str = "facing",
-                         plane_set: str = "own",
+                         plane_set: str = "own", reuse_setup: bool = False,
                          method: str = "clustered_ptsv", options: dict | None = None):
     """The whole pipeline for ``kind`` = "cluster" (2014) or "ptsv" (2011).
 
@@ -402,19 +406,27 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
     # capacity buckets learnt per frame-local scene (a moving light gives a new subset
     # every frame, so not per subset)
     buckets = _BUCKETS.setdefault(scene, {})
-    face_culled = 0
-    if front_face_culling:
-        # dropped before the triangle setup: the setup and the post-perspective planes
-        # cover the kept triangles only; the casters keep their order
-        with timer.stage("setup"):
-            scene, face_culled = without_culled_faces(scene, light_h, cull_side)
     with precision_mode(precision) as dtype:
         tree = (ch.cluster_layout(camera, z_bits, depth_slices) if kind == "cluster"
                 else ch.ptsv_layout(camera))
-        t_cap = bucket(scene.num_triangles, minimum=MIN_TRIANGLES)
-        tri = pad(scene.triangles, t_cap, dtype=dtype)
-        planes, valid = timer.run("setup", world_setup, jnp.asarray(tri),
-                                  jnp.asarray(light_h.astype(dtype)))
+        key = (light_h.astype(np.float64).tobytes(), np.dtype(dtype).str,
+               bool(front_face_culling), cull_side)
+        held = _SETUPS.get(scene) if reuse_setup else None
+        if held is not None and held[0] == key:
+            scene, face_culled, planes, valid = held[1]
+        else:
+            held_by, face_culled = scene, 0
+            if front_face_culling:
+                # dropped before the triangle setup: the setup and the post-perspective
+                # planes cover the kept triangles only; the casters keep their order
+                with timer.stage("setup"):
+                    scene, face_culled = without_culled_faces(scene, light_h, cull_side)
+            tri = pad(scene.triangles, bucket(scene.num_triangles, minimum=MIN_TRIANGLES),
+                      dtype=dtype)
+            planes, valid = timer.run("setup", world_setup, jnp.asarray(tri),
+                                      jnp.asarray(light_h.astype(dtype)))
+            if reuse_setup:
+                _SETUPS[held_by] = (key, (scene, face_culled, planes, valid))
         with timer.stage("setup"):
             valid, _, scale, bound = caster_terms(scene, samples, light_h, planes, valid,
                                                   shadow_eps, bias, dtype)
@@ -581,12 +593,19 @@ COMMON_TRAVERSAL_OPTIONS = {
                            "leaves: the valid light-facing ones ('facing', tighter bounds) or "
                            "every valid pixel ('all': the 2011 full depth buffer; the others "
                            "stay unlit)", allowed=("facing", "all")),
+    "reuse_setup": Option(False, "keep the light's triangle setup (face culling and every "
+                          "caster's world-space shadow-volume planes) for the next call with "
+                          "the same scene, light, precision and culling (a static light and "
+                          "geometry: it depends on neither camera nor samples; 64 bytes per "
+                          "caster); off: every call sets up, as the papers time a frame",
+                          allowed=BOOL),
 }
 
 
 #: what clustered_ptsv and ptsv declare to the registry
 TRAVERSAL_DECLARATION = {
     "kind": "exact", "stages": ("samples", "setup", "build", "traverse", "merge"),
+    "static_options": {"reuse_setup": True},
     "counters": ("samples", "casters", "culled_triangles", "front_face_culled", "tests",
                  "tests_per_pixel", "node_tests", "trivial_accepts", "trivial_rejects",
                  "extra_plane_rejects", "leaf_visits", "ta_shadowed", "jobs", "pass2_jobs",
