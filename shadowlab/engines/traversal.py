@@ -136,9 +136,9 @@ def child_words(*masks):
 
 
 class Scratch(NamedTuple):
-    """The buffers one traversal pass works in, all of the frontier capacity [cap] and
-    allocated once per pass (not per level or wave, whose work follows the frontier's
-    true size ``n``): the frontier (item int32, node uint32, job int32), a copy of it
+    """The buffers one traversal pass works in, all of the frontier capacity [cap],
+    allocated once and kept between passes (not per level or wave, whose work follows
+    the frontier's true size ``n``): the frontier (item int32, node uint32, job int32), a copy of it
     that the compaction reads while it writes the next frontier over the first, and a
     level's children words (uint32) and their prefix sums (int32). Entries past ``n`` (a
     frontier) or past the tested chunks (words, sums) are left over from earlier levels

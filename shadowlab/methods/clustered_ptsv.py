@@ -69,7 +69,7 @@ from ..scene.caches import per_scene_cache
 
 TOP_JOBS = 1024
 #: per scene: the traversal's frontier buckets that sufficed (``engines.traversal``); a
-#: bucket grown for one scene would slow the traversal of every other
+#: bucket grown for one scene would make every other hold its memory
 _BUCKETS = per_scene_cache()
 #: per frame-local scene: (key, (casters' scene, face-culled count, planes, valid)) of the
 #: latest light set up with ``reuse_setup`` (``scene.caches.drop`` forgets it, as it

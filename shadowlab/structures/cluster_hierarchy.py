@@ -256,16 +256,14 @@ def level_extents(tree: TreeLayout, level: int) -> tuple:
             1 << tree.extent_bits(level, 2) if tree.kind == "cluster" else 0)
 
 
-def implicit_bounds(tree: TreeLayout, level: int, node, dtype, extents=None):
+def implicit_bounds(tree: TreeLayout, level: int, node, dtype):
     """Implicit boxes (lo, hi), each [..., 3], of level-``level`` nodes ``node`` (uint32).
 
     x / y from the node's tile range, q from its depth-slice range (the top slice is
     open-ended: q down to 0). For PTSV the q range is [0, 1 / near] (explicit bounds
-    replace it). Padded outwards by :func:`pad_fraction`. ``extents`` replaces
-    :func:`level_extents` (traced scalars when the level is chosen at run time; the
-    results are the same bits).
+    replace it). Padded outwards by :func:`pad_fraction`.
     """
-    shift, ex, ey, ez = level_extents(tree, level) if extents is None else extents
+    shift, ex, ey, ez = level_extents(tree, level)
     base = jnp.asarray(node).astype(jnp.uint32) << shift
     coords = decode(base, tree.layout, len(tree.bits), xp=jnp)
     tw, th = tree.tile
