@@ -1170,7 +1170,8 @@ def run_details(scene, gbuf, light, *, form: str = "lanes", workers: int = 64,
     traversal) and timings ``samples`` (view samples), ``keys`` (JAX: coordinates and
     cluster keys, the build's inputs), ``setup`` (setup kernel, bias terms, casters),
     ``build``, ``traverse`` (both passes), ``merge`` (seconds; compile excluded: the
-    module is loaded first)."""
+    module is loaded first). The method's ``reuse_setup`` is accepted and has no effect
+    here: the setup kernel runs every call (results do not depend on it)."""
     from ..structures import cluster_hierarchy as ch
     from ..methods.clustered_ptsv import top_jobs
     from ..methods.registry import call_options
