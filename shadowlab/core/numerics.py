@@ -133,6 +133,26 @@ def materialize(*arrays):
     return out if len(arrays) > 1 else out[0]
 
 
+def shifted_scan(x, combine, fill):
+    """Inclusive prefix scan of ``x`` [..., P] along its last axis (P small, e.g. a row of
+    a tile or a chunk of a few thousand slots) in log2(P) passes, each combining every
+    element with the one ``shift`` before it (``fill``, the identity of ``combine``, where
+    there is none). XLA/CPU lowers ``cumsum`` / ``cummax`` over such an axis to a windowed
+    reduction, several times slower.
+
+    Args:
+        x: array [..., P]; combine: elementwise associative op, e.g. ``jnp.add`` or
+            ``jnp.maximum``; fill: its identity for x's values (0 for sums; for a max,
+            anything at most every value).
+    """
+    widths = [(0, 0)] * (x.ndim - 1)
+    shift = 1
+    while shift < x.shape[-1]:
+        x = combine(x, jnp.pad(x[..., :-shift], widths + [(shift, 0)], constant_values=fill))
+        shift *= 2
+    return x
+
+
 def cross_columns(a, b):
     """Cross product of NumPy 3-vectors given as 3 columns [...] each: the columns of
     ``a x b``, each ``a_i b_j - a_j b_i`` (the products and differences ``np.cross``

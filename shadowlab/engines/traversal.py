@@ -71,6 +71,7 @@ import numpy as np
 
 from ..core.capacity import (WIDE_LOW_BITS, bucket, check_int32, retry_on_overflow,
                              wide_add, wide_min, wide_total)
+from ..core.numerics import shifted_scan
 from ..core.timing import compiled
 
 LEAF_CHUNK = 4096        # leaf jobs per step of the leaf loop
@@ -161,6 +162,7 @@ class Scratch(NamedTuple):
 #: (``ptsv`` on fuzzy 100k, 1024x1024, after the levels stopped clearing their own).
 #: Only memory is reused: nothing computed survives a pass.
 SCRATCH_KEEP = 2
+_UINT32_FIELDS = ("node", "read_node", "words")            # the others are int32
 _SCRATCH: collections.OrderedDict = collections.OrderedDict()
 
 
@@ -168,9 +170,8 @@ def _take_scratch(cap: int) -> Scratch:
     kept = _SCRATCH.pop(cap, None)
     if kept is not None:
         return kept
-    return Scratch(*(jnp.zeros(cap, t) for t in (jnp.int32, jnp.uint32, jnp.int32, jnp.int32,
-                                                 jnp.uint32, jnp.int32, jnp.uint32,
-                                                 jnp.int32)))
+    return Scratch(*(jnp.zeros(cap, jnp.uint32 if name in _UINT32_FIELDS else jnp.int32)
+                     for name in Scratch._fields))
 
 
 def _keep_scratch(cap: int, scratch: Scratch) -> None:
@@ -313,11 +314,7 @@ def _slot_owners(end, base, size: int, length):
         return owner.at[jnp.where(keep, pos, size)].max(j, mode="drop")
 
     owner = jax.lax.fori_loop(0, (hi - lo) // size + 1, mark, jnp.zeros(size, jnp.int32))
-    shift = 1
-    while shift < size:                      # inclusive prefix max, log2(size) passes
-        owner = jnp.maximum(owner, jnp.pad(owner[:-shift], (shift, 0)))
-        shift *= 2
-    return owner
+    return shifted_scan(owner, jnp.maximum, 0)          # owners are >= 0
 
 
 def _copy_chunks(dst, src, offset, n, chunk):

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..core.capacity import CapacityError
-from ..core.numerics import opaque_multiplier, opaque_zero, ordered_dot
+from ..core.numerics import opaque_multiplier, opaque_zero, ordered_dot, shifted_scan
 from ..geometry.morton import axis_bits, decode, encode, grouped_layout, round_robin_layout
 
 FANOUT_BITS = 5
@@ -431,17 +431,6 @@ def _pad_live(lo, hi, count):
     return _over(count, lo.shape[0], body, (lo, hi))
 
 
-def _row_prefix(x):
-    """Inclusive prefix sums along axis 1 of int32 [R, P] (P small): log2(P) shifted
-    adds (XLA's cumsum over a minor axis is a windowed reduction, several times
-    slower here)."""
-    sh = 1
-    while sh < x.shape[1]:
-        x = x + jnp.pad(x[:, :-sh], ((0, 0), (sh, 0)))
-        sh *= 2
-    return x
-
-
 def _tile_leaves(tile_keys, tile_valid, cap: int):
     """The distinct leaf keys (clusters): uint32 [cap] (tile-major, ascending within a
     tile; the first ``count`` entries are used) and count (int32).
@@ -458,7 +447,7 @@ def _tile_leaves(tile_keys, tile_valid, cap: int):
     k = jax.lax.sort(jnp.where(tile_valid, tile_keys, fill), dimension=1, is_stable=False)
     first = jnp.concatenate([jnp.ones_like(k[:, :1], bool), k[:, 1:] != k[:, :-1]], axis=1)
     first &= jnp.any(tile_valid, axis=1, keepdims=True)
-    within = _row_prefix(first.astype(jnp.int32))
+    within = shifted_scan(first.astype(jnp.int32), jnp.add, 0)
     per_tile = within[:, -1]
     pos = (jnp.cumsum(per_tile) - per_tile)[:, None] + within - 1
     leaves = jnp.zeros(cap, jnp.uint32).at[jnp.where(first, pos, cap)].set(k, mode="drop")
