@@ -85,6 +85,28 @@ def test_plane_predicate_rounding_within_the_pad(form):
     assert worst < PAD_FACTOR / 4, worst
 
 
+@pytest.mark.parametrize("kind", ["normal", "ties", "sorted", "outliers", "constant"])
+def test_tail_quantiles_are_numpys_quantiles_bit_for_bit(kind):
+    """The candidates-by-threshold quantiles against np.quantile itself, on sizes on
+    both sides of the subsample path and inputs that bias a strided subsample."""
+    rng = np.random.default_rng(len(kind))
+    for n in (1, 7, 4 * bins.TAIL_SUBSAMPLE - 1, 4 * bins.TAIL_SUBSAMPLE, 50_001, 300_000):
+        if kind == "normal":
+            x = rng.normal(size=n)
+        elif kind == "ties":
+            x = rng.integers(0, 40, n).astype(np.float64)
+        elif kind == "sorted":                  # every strided sample from one end
+            x = np.sort(rng.uniform(-1, 1, n))[::-1].copy()
+        elif kind == "outliers":                # a few far values, as grazing q
+            x = rng.uniform(size=n)
+            x[rng.integers(0, n, 5)] = rng.normal(scale=1e6, size=5)
+        else:
+            x = np.full(n, 0.25)
+        for q in (0.0, 1e-3, 0.01, 0.3, 0.5):
+            want = np.quantile(x, [q, 1 - q])
+            assert bins.tail_quantiles(x, q) == (want[0], want[1]), (kind, n, q)
+
+
 def test_the_grid_spans_the_core_of_q_and_an_outlier_lands_in_a_border_cell():
     rng = np.random.default_rng(3)
     x = rng.uniform(-0.5, 0.5, 100_000)

@@ -182,9 +182,52 @@ def core_range(x: np.ndarray) -> tuple[float, float]:
     if len(x) == 0:
         return 0.0, 0.0
     a, b = float(x.min()), float(x.max())
-    p, r = np.quantile(x, [CORE_QUANTILE, 1.0 - CORE_QUANTILE])
+    p, r = tail_quantiles(x, CORE_QUANTILE)
     margin = CORE_MARGIN * (r - p)
     return max(a, float(p - margin)), min(b, float(r + margin))
+
+
+#: candidates of a tail kept by a threshold from a strided subsample of this size
+TAIL_SUBSAMPLE = 4096
+
+
+def tail_quantiles(x: np.ndarray, q: float) -> tuple[float, float]:
+    """``np.quantile(x, [q, 1 - q])`` (its 'linear' method, the same bits) of finite
+    float64 x [n], for a small q: the four order statistics it interpolates are found
+    among the candidates below (above) a threshold taken from a strided subsample, so
+    the work is one comparison pass per tail instead of a copy and a partition of x
+    (26 -> 8 ms for both axes at 1M samples). Falls back to ``np.quantile`` when a
+    threshold keeps too few candidates (never a different answer, only slower)."""
+    x = np.asarray(x, np.float64)
+    n = len(x)
+    if n < 4 * TAIL_SUBSAMPLE or not 0.0 <= q <= 0.5:
+        return tuple(float(v) for v in np.quantile(x, [q, 1.0 - q]))
+    virtual = (n - 1) * np.array([q, 1.0 - q])      # numpy's 'linear' virtual indices
+    prev = np.floor(virtual)
+    gamma = virtual - prev
+    prev = prev.astype(np.int64)
+    nxt = np.minimum(prev + 1, n - 1)
+    sub = np.sort(x[:: n // TAIL_SUBSAMPLE])
+    m = len(sub)
+    # the subsample's order statistics at about 4x the wanted rank plus a margin: the
+    # thresholds keep a few thousand candidates, and at least the wanted rank + 2 on all
+    # but adversarial inputs (checked below)
+    j = min(m - 1, int(4 * q * m) + 16)
+    low, high = sub[j], sub[m - 1 - j]
+    below = x[x <= low]
+    above = x[x >= high]
+    k_lo = (int(prev[0]), int(nxt[0]))
+    k_hi = (n - 1 - int(nxt[1]), n - 1 - int(prev[1]))   # ranks from the top
+    if len(below) <= k_lo[1] or len(above) <= k_hi[1]:
+        return tuple(float(v) for v in np.quantile(x, [q, 1.0 - q]))
+    below = np.partition(below, k_lo)
+    above = -np.partition(-above, k_hi)
+    a = np.array([below[k_lo[0]], above[k_hi[1]]])       # x_(prev)
+    b = np.array([below[k_lo[1]], above[k_hi[0]]])       # x_(next)
+    # numpy's lerp: a + (b - a) t, or b - (b - a) (1 - t) where t >= 0.5
+    diff = b - a
+    out = np.where(gamma >= 0.5, b - diff * (1 - gamma), a + diff * gamma)
+    return float(out[0]), float(out[1])
 
 
 def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = TILE,
@@ -221,10 +264,11 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     order = np.argsort(_depth_key(zq, good), kind="stable")
     order = order[np.argsort(cell[order].astype(np.uint16 if n_cells < 65536 else np.int64),
                              kind="stable")]
-    sorted_cell = cell[order]
-    first = np.flatnonzero(np.diff(sorted_cell, prepend=-1)) if len(order) else order
-    cells = sorted_cell[first]
-    per_cell = np.diff(first, append=len(order))
+    # the occupied cells ascending, as in ``order``, and where each one's run starts
+    counts = np.bincount(cell, minlength=n_cells + 1)
+    cells = np.flatnonzero(counts)
+    per_cell = counts[cells]
+    first = np.cumsum(per_cell) - per_cell
     nb_cell = -(-per_cell // block)
     rank = np.arange(len(order)) - np.repeat(first, per_cell)
     block_of = np.repeat(np.cumsum(nb_cell) - nb_cell, per_cell) + rank // block
