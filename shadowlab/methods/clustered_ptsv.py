@@ -455,7 +455,7 @@ def run_traversal_method(scene, gbuf, light, *, kind: str, precision: str, shado
             extra = (own if plane_set == "own" else PLANE_SETS[plane_set]) \
                 if culling_planes else "none"
             inv_view = jnp.asarray(np.linalg.inv(camera.view_matrix()).astype(dtype))
-            g, tol = post_perspective_planes(planes.reshape(-1, 4, 4), inv_view, sst["qmax"],
+            g, tol = post_perspective_planes(planes, inv_view, sst["qmax"],
                                              sst["pmax"], extra=extra, p00=tree.p00,
                                              p11=tree.p11)
             jax.block_until_ready(g)
