@@ -13,6 +13,7 @@ import shadowlab as sl
 from shadowlab.geometry.triangle_setup import shadow_volume_planes
 from shadowlab.structures import cluster_hierarchy as ch
 from shadowlab.methods.clustered_ptsv import post_perspective_planes, run_traversal_method
+from shadowlab.methods import clustered_ptsv as clustered
 from shadowlab.scene.procedural import default_view
 
 # One resolution for every test, and small scenes: with the methods' minimum triangle and
@@ -647,3 +648,16 @@ def test_reused_setup_gives_the_same_result(precision):
     assert run("cluster", moved, reuse_setup=True)[1]["planes"] is d4["planes"]
     caches.drop(scene)
     assert run("cluster", moved, reuse_setup=True)[1]["planes"] is not d4["planes"]
+
+
+def test_top_jobs_are_the_largest_counts_descending():
+    """The selection equals a plain sort's head, zero-padded, at sizes around k."""
+    rng = np.random.default_rng(5)
+    k = clustered.TOP_JOBS
+    for n in (0, 1, k - 1, k, k + 1, 5 * k):
+        for high in (3, 10**6):                 # many ties, few ties
+            x = rng.integers(0, high, n)
+            want = np.zeros(k, np.int64)
+            head = sorted(x.tolist(), reverse=True)[:k]
+            want[: len(head)] = head
+            assert np.array_equal(clustered.top_jobs(x), want), (n, high)

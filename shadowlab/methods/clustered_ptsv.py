@@ -365,7 +365,10 @@ def _sample_stage(shape, params, pos, scale, view, index, count):
 def top_jobs(iterations: np.ndarray, k: int = TOP_JOBS) -> np.ndarray:
     """int64 [k]: the k largest per-job iteration counts, descending, zero-padded."""
     out = np.zeros(k, np.int64)
-    top = np.sort(np.asarray(iterations, np.int64))[::-1][:k]
+    x = np.asarray(iterations, np.int64)
+    if len(x) > k:                      # the k largest by selection, not a whole sort
+        x = np.partition(x, len(x) - k)[len(x) - k:]
+    top = np.sort(x)[::-1]
     out[: len(top)] = top
     return out
 
