@@ -173,6 +173,11 @@ def test_bench_writes_json(tmp_path, capsys):
     assert len(ref["dynamic_runs"]) == 1 and row["dynamic_runs"][0] > 0
     assert row["dynamic_ratio"] == pytest.approx(
         row["dynamic_median_seconds"] / ref["dynamic_median_seconds"])
+    # paired: an Embree pass (BVH kept) timed before each warm call of the method
+    assert len(row["paired_reference_runs"]) == 1
+    assert row["paired_reference_runs"][0] > 0
+    assert row["paired_ratio"] == pytest.approx(
+        row["median_seconds"] / row["paired_reference_median_seconds"])
 
 
 def test_bench_static_ratio_uses_the_methods_static_options(tmp_path):

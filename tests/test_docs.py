@@ -58,8 +58,8 @@ def test_bench_report_renders_hard_and_soft_cases():
     from shadowlab.harness import bench_report
 
     hard = {"stages": {"setup": 0.002, "test": 0.0405, "total": 0.0425}, "compile_seconds": 1.5,
-            "median_seconds": 0.0425, "ratio_to_reference": 4.25, "dynamic_ratio": 1.75,
-            "tests_per_second": 2.5e9,
+            "median_seconds": 0.0425, "ratio_to_reference": 4.25, "paired_ratio": 3.125,
+            "dynamic_ratio": 1.75, "tests_per_second": 2.5e9,
             "error": {"valid_pixels": 100, "mismatches": 3}}
     soft = {"stages": {"eval": 0.25, "total": 0.25}, "compile_seconds": 0.25,
             "median_seconds": 0.25, "embree_seconds_at_equal_error": 0.75,
@@ -77,8 +77,8 @@ def test_bench_report_renders_hard_and_soft_cases():
     for line in text.splitlines():
         if line.startswith("| `"):
             rows.setdefault(line.split("|")[1].strip(), line)
-    assert rows["`m_hard`"].split("|")[2:8] == [" 42.5 ", " 1.50 ", " 4.25 ", " 1.75 ",
-                                                 " 3 of 100 ", " 2.50 G "]
+    assert rows["`m_hard`"].split("|")[2:9] == [" 42.5 ", " 1.50 ", " 4.25 ", " 3.12 ",
+                                                 " 1.75 ", " 3 of 100 ", " 2.50 G "]
     assert "setup 2.0, test 40.5" in rows["`m_hard`"]
     assert rows["`m_soft`"].split("|")[2:9] == [" 250.0 ", " 0.25 ", " 0.0012 ", " 0.0150 ",
                                                  " 0.500 ", " 0.9750 ", " 750.0 "]
@@ -97,10 +97,11 @@ def test_bench_report_states_each_target_from_the_latest_file():
     built-in cases that no file holds."""
     from shadowlab.harness import bench_report
 
-    def hard(ratio, **stages):
-        return {"stages": {**stages, "total": 1.0}, "compile_seconds": 0.5,
-                "median_seconds": 0.25, "ratio_to_reference": ratio, "dynamic_ratio": 1.0,
-                "error": {"valid_pixels": 4, "mismatches": 0}}
+    def hard(ratio, paired=None, **stages):
+        row = {"stages": {**stages, "total": 1.0}, "compile_seconds": 0.5,
+               "median_seconds": 0.25, "ratio_to_reference": ratio, "dynamic_ratio": 1.0,
+               "error": {"valid_pixels": 4, "mismatches": 0}}
+        return row if paired is None else dict(row, paired_ratio=paired)
 
     def case(name, methods, **extra):
         return {"name": name, "scene": "s", "triangles": 1000, "resolution": [2, 2],
@@ -108,14 +109,16 @@ def test_bench_report_states_each_target_from_the_latest_file():
                 "methods": methods, **extra}
     older = {"cases": [case("exact-fuzzy-100k-1024", {"m": hard(4.0, a=0.1)})]}
     newer = {"cases": [case("exact-fuzzy-100k-1024", {"m": hard(3.0, a=0.1)}),
-                       case("own", {"m": hard(6.0, small=0.01, big=0.2, mid=0.03),
+                       case("own", {"m": hard(6.0, 4.5, small=0.01, big=0.2, mid=0.03),
                                     "skip": {"skipped": "not here"}}, target_ratio=5.0),
                        case("untargeted", {"m": hard(9.0)})]}
     text = bench_report.render([("old.json", older), ("new.json", newer)])
     rows = [line for line in text.splitlines() if line.startswith("| `") and "x |" in line]
     assert rows == [
-        "| `exact-fuzzy-100k-1024` | 1,000 | 3x | `m` | 3.00 | **met** | 250.0 |  | `new.json` |",
-        "| `own` | 1,000 | 5x | `m` | 6.00 | **missed** | 250.0 | big 200.0, mid 30.0 "
+        "| `exact-fuzzy-100k-1024` | 1,000 | 3x | `m` | 3.00 | - | **met** | 250.0 |  "
+        "| `new.json` |",
+        # the verdict is on the static ratio, whatever the paired one says
+        "| `own` | 1,000 | 5x | `m` | 6.00 | 4.50 | **missed** | 250.0 | big 200.0, mid 30.0 "
         "| `new.json` |"]
     assert "Met: 1 of 2." in text
     missing = next(line for line in text.splitlines() if line.startswith("Cases with a target"))

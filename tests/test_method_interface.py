@@ -168,6 +168,33 @@ def test_evaluate_reports_warm_medians_and_compile_apart(frame):
     assert np.array_equal(ev.reference, sl.reference_shadows(*frame))
 
 
+def test_evaluate_times_a_between_call_before_each_warm_call(frame, monkeypatch):
+    """The paired protocol: the calls alternate warm-up, between, method, between,
+    method (each method call follows a between call), and each between call is timed."""
+    import sys
+    import time
+
+    from shadowlab.harness import evaluate
+
+    module = sys.modules["shadowlab.harness.evaluate"]
+    order = []
+    real = module.compute_shadows
+    monkeypatch.setattr(module, "compute_shadows",
+                        lambda *a, **k: order.append("method") or real(*a, **k))
+    naps = iter([0.05, 0.15])
+
+    def between():
+        order.append("between")
+        time.sleep(next(naps))
+
+    ev = evaluate(*frame, "brute_force", repeats=2, between=between)
+    assert order == ["method", "between", "method", "between", "method"]
+    assert len(ev.between_seconds) == 2
+    assert 0.05 <= ev.between_seconds[0] < ev.between_seconds[1]
+    assert ev.between_seconds[1] >= 0.15
+    assert evaluate(*frame, "brute_force", repeats=1).between_seconds == []
+
+
 def test_presets_replace_defaults_explicit_options_win_and_bad_values_are_refused(frame):
     name = "_toy_presets"
 

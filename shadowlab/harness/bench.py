@@ -17,6 +17,14 @@ Two ratios per hard method (docs/benchmarks.md, "Protocol"):
 - **dynamic** (``dynamic_ratio``): every timed call starts with every per-scene cache
   dropped (``scene.caches.drop``): Embree pays its BVH build plus the trace, the method
   its whole frame (wall clock of ``compute_shadows``, including what it would cache).
+
+The static ratio is also measured **paired** (``paired_ratio``, reported next to it, not
+used for the target verdict): the Embree pass (BVH kept) runs before each of a hard
+method's warm calls, and the method's median is divided by the median of those passes.
+A machine whose speed drifts between the case's first Embree passes and a method's runs
+(a shared or throttled one) slows both sides of the paired ratio alike; each side also
+starts with the caches the other left, unlike the back-to-back passes of the static
+ratio.
 """
 
 from __future__ import annotations
@@ -141,8 +149,12 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
         options = dict(config.methods.options.get(name, {}))
         written = config.methods.given.get(name, ())
         static = {k: v for k, v in get(name).static_options.items() if k not in written}
+        soft = get(name).kind is MethodKind.SOFT
+        if not soft:        # the BVH again (the previous method's dynamic runs dropped it)
+            reference_shadows(scene, gbuf, view.light, shadow_eps=eps)
         ev = evaluate(scene, gbuf, view.light, name, {**options, **static}, reference=refs,
-                      repeats=repeats)
+                      repeats=repeats, between=None if soft else lambda: reference_shadows(
+                          scene, gbuf, view.light, shadow_eps=eps))
         options.setdefault("shadow_eps", eps)
         # soft methods are compared at equal error, not by ratio: no dynamic frame for them
         dynamic = [] if ev.kind is MethodKind.SOFT else dynamic_seconds(
@@ -160,6 +172,11 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
                "dynamic_ratio": float(np.median(dynamic)) / out["reference"][
                    "dynamic_median_seconds"] if dynamic else None,
                "counters": counters, "error": ev.error}
+        if ev.between_seconds:
+            paired = float(np.median(ev.between_seconds))
+            row["paired_reference_runs"] = ev.between_seconds
+            row["paired_reference_median_seconds"] = paired
+            row["paired_ratio"] = ev.seconds / paired if paired > 0 else None
         if ev.kind is MethodKind.SOFT:
             curve = out["soft_reference"]["curve"]
             row["embree_seconds_at_equal_error"] = embree_seconds_at_error(
@@ -227,7 +244,8 @@ def format_bench(results: dict) -> str:
         if target is not None:
             lines.append(f"  target: at most {target:g}x Embree (static) per method")
         lines.append(f"  {'method':<16} {'run ms':>9} {'compile s':>9} {'x Embree':>9} "
-                     f"{'dynamic x':>9} {'mismatch':>9} {'Gtests/s':>9}  stages (ms)")
+                     f"{'paired x':>9} {'dynamic x':>9} {'mismatch':>9} {'Gtests/s':>9}  "
+                     f"stages (ms)")
         if "soft_reference" in case:
             curve = ", ".join(f"{c['rays']} rays {1000 * c['seconds']:.0f} ms MAE {c['mae']:.4f}"
                               for c in case["soft_reference"]["curve"])
@@ -269,8 +287,10 @@ def format_bench(results: dict) -> str:
                                if k != "total")
             rate = m.get("tests_per_second")
             verdict = target_verdict(m["ratio_to_reference"], target)
+            paired = m.get("paired_ratio")
             lines.append(f"  {name:<16} {1000 * m['median_seconds']:>9.1f} "
                          f"{m['compile_seconds']:>9.2f} {m['ratio_to_reference']:>9.2f} "
+                         f"{'-' if paired is None else f'{paired:.2f}':>9} "
                          f"{m['dynamic_ratio']:>9.2f} {m['error']['mismatches']:>9} "
                          f"{'-' if rate is None else f'{rate / 1e9:.2f}':>9}  {stages}"
                          + (f"  [target {verdict}]" if verdict else ""))

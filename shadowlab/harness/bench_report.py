@@ -89,18 +89,19 @@ def _hard_table(case: dict) -> list[str]:
             if "skipped" in m or "mismatches" in m.get("error", {})]
     if not rows:
         return []
-    out = ["| method | warm median (ms) | compile (s) | x Embree | dynamic x | mismatches "
-           "| tests/s | stages (ms) |",
-           "|---|---|---|---|---|---|---|---|"]
+    out = ["| method | warm median (ms) | compile (s) | x Embree | paired x | dynamic x "
+           "| mismatches | tests/s | stages (ms) |",
+           "|---|---|---|---|---|---|---|---|---|"]
     for name, m in rows:
         if "skipped" in m:
-            out.append(f"| `{name}` | skipped: {m['skipped']} | | | | | | |")
+            out.append(f"| `{name}` | skipped: {m['skipped']} | | | | | | | |")
             continue
         rate = m.get("tests_per_second")
         static = ", ".join(f"{k}={v}" for k, v in m.get("static_options", {}).items())
         label = f"`{name}` ({static})" if static else f"`{name}`"
         out.append(f"| {label} | {_ms(m['median_seconds'])} | {m['compile_seconds']:.2f} "
                    f"| {_num(m.get('ratio_to_reference'), '.2f')} "
+                   f"| {_num(m.get('paired_ratio'), '.2f')} "
                    f"| {_num(m.get('dynamic_ratio'), '.2f')} "
                    f"| {m['error']['mismatches']} of {m['error']['valid_pixels']} "
                    f"| {'-' if rate is None else f'{rate / 1e9:.2f} G'} | {_stages(m)} |")
@@ -228,8 +229,10 @@ def _targets(named_results) -> list[str]:
     lines = ["## Targets", "",
              "Each case with a `target` in `shadowlab/configs/bench.toml` (the largest "
              "static ratio to the Embree pass that its issue asks of each method), from the "
-             "last of the files below that holds it. A missed row names the method's two "
-             "largest stages.", ""]
+             "last of the files below that holds it. The verdict is on x Embree (the case's "
+             "Embree passes); paired x (an Embree pass before each of the method's warm "
+             "calls, in files since 2026-12-07) shows how much a drift of the machine's "
+             "speed moved it. A missed row names the method's two largest stages.", ""]
     rows, met = [], 0
     for name, (label, case, target) in latest.items():
         for method, m in case["methods"].items():
@@ -241,11 +244,13 @@ def _targets(named_results) -> list[str]:
                             reverse=True)[:2]
             where = ", ".join(f"{k} {_ms(v)}" for v, k in stages) if verdict == "missed" else ""
             rows.append(f"| `{name}` | {case['triangles']:,} | {target:g}x | `{method}` "
-                        f"| {m['ratio_to_reference']:.2f} | **{verdict}** "
+                        f"| {m['ratio_to_reference']:.2f} "
+                        f"| {_num(m.get('paired_ratio'), '.2f')} | **{verdict}** "
                         f"| {_ms(m['median_seconds'])} | {where} | `{label}` |")
     if rows:
-        lines += ["| case | triangles | target | method | x Embree | verdict | median (ms) "
-                  "| largest stages (ms) | file |", "|---|---|---|---|---|---|---|---|---|"]
+        lines += ["| case | triangles | target | method | x Embree | paired x | verdict "
+                  "| median (ms) | largest stages (ms) | file |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         lines += rows + ["", f"Met: {met} of {len(rows)}."]
     else:
         lines.append("None of these files holds a hard method's result for a case with a "

@@ -4,6 +4,8 @@ Timing protocol (every caller gets the same): ``warmup`` calls first, whose comp
 time (the ``<stage>_compile`` entries) is kept apart, then ``repeats`` warm calls; the
 reported run time of each stage and of ``total`` is the median over the warm calls
 (seconds, compile excluded). With ``repeats = 0`` the warm-up call is the measurement.
+A caller may pass ``between``: a call timed right before each warm call (the bench times
+the Embree pass there, so that each method run has a reference run next to it).
 
 Reference and metric are chosen here and nowhere else, from the method's kind:
 
@@ -128,6 +130,8 @@ class Evaluation:
         cold: the first call's timings (compile included as ``<stage>_compile``).
         runs: the timings of each warm call.
         reference: the reference array the metric compared against.
+        between_seconds: wall-clock seconds of each ``between`` call (one before each
+            warm call; empty without ``between``).
     """
 
     method: str
@@ -138,6 +142,7 @@ class Evaluation:
     cold: dict
     runs: list
     reference: np.ndarray
+    between_seconds: list = dataclasses.field(default_factory=list)
 
     @property
     def seconds(self) -> float:
@@ -168,7 +173,8 @@ def median_timings(runs: list[dict], calls: list[dict]) -> dict:
 def evaluate(scene, gbuf, light, method: str, options: dict | None = None,
              reference: References | np.ndarray | None = None,
              metric: Callable | None = None, repeats: int = DEFAULT_REPEATS,
-             warmup: int = DEFAULT_WARMUP) -> Evaluation:
+             warmup: int = DEFAULT_WARMUP, between: Callable[[], object] | None = None
+             ) -> Evaluation:
     """Run ``method`` under the timing protocol and measure its error.
 
     Args:
@@ -178,6 +184,8 @@ def evaluate(scene, gbuf, light, method: str, options: dict | None = None,
         metric: ``fn(result, truth, refs) -> dict``; default by the method's kind.
         repeats: warm calls (median reported); 0 measures the warm-up call itself.
         warmup: calls before the warm ones (at least one call is always made).
+        between: called (and timed) before each warm call: the calls alternate, so a
+            machine whose speed drifts during the runs slows both alike.
 
     Raises:
         MethodError: unknown method or option, bad value, or a light it cannot use.
@@ -200,8 +208,12 @@ def evaluate(scene, gbuf, light, method: str, options: dict | None = None,
     for _ in range(max(warmup, 0 if repeats else 1)):
         result = compute_shadows(scene, gbuf, light, method=method, **options)
         calls.append(result.timings)
-    runs = []
+    runs, between_seconds = [], []
     for _ in range(repeats):
+        if between is not None:
+            t0 = time.perf_counter()
+            between()
+            between_seconds.append(time.perf_counter() - t0)
         result = compute_shadows(scene, gbuf, light, method=method, **options)
         runs.append(result.timings)
     all_calls = calls + runs
@@ -209,7 +221,8 @@ def evaluate(scene, gbuf, light, method: str, options: dict | None = None,
     truth = refs.for_kind(info.kind)
     error = (metric or default_metric(info.kind))(result, truth, refs)
     result = result.with_reference(truth, refs.gbuf.valid)     # for its display
-    return Evaluation(method, info.kind, result, error, timings, all_calls[0], runs, truth)
+    return Evaluation(method, info.kind, result, error, timings, all_calls[0], runs, truth,
+                      between_seconds)
 
 
 __all__ = ["DEFAULT_REPEATS", "DEFAULT_WARMUP", "EXPLAIN_LIMIT", "Evaluation", "References",
