@@ -174,14 +174,16 @@ CORE_QUANTILE = 1e-3
 CORE_MARGIN = 0.05
 
 
-def core_range(x: np.ndarray) -> tuple[float, float]:
+def core_range(x: np.ndarray, extremes: tuple[float, float] | None = None
+               ) -> tuple[float, float]:
     """(lo, hi) of the grid along one axis: the [CORE_QUANTILE, 1 - CORE_QUANTILE]
-    quantiles of ``x`` widened by CORE_MARGIN of their range, within [min, max]. With
-    no outliers this is (min, max). A performance choice only: the border cells reach
-    infinity, so any span bins every q correctly (module docstring)."""
+    quantiles of ``x`` widened by CORE_MARGIN of their range, within [min, max]
+    (``extremes``: x's (min, max) when the caller has them). With no outliers this is
+    (min, max). A performance choice only: the border cells reach infinity, so any span
+    bins every q correctly (module docstring)."""
     if len(x) == 0:
         return 0.0, 0.0
-    a, b = float(x.min()), float(x.max())
+    a, b = extremes if extremes is not None else (float(x.min()), float(x.max()))
     p, r = tail_quantiles(x, CORE_QUANTILE)
     margin = CORE_MARGIN * (r - p)
     return max(a, float(p - margin)), min(b, float(r + margin))
@@ -200,8 +202,11 @@ def tail_quantiles(x: np.ndarray, q: float) -> tuple[float, float]:
     threshold keeps too few candidates (never a different answer, only slower)."""
     x = np.asarray(x, np.float64)
     n = len(x)
-    if n < 4 * TAIL_SUBSAMPLE or not 0.0 <= q <= 0.5:
+
+    def by_numpy():
         return tuple(float(v) for v in np.quantile(x, [q, 1.0 - q]))
+    if n < 4 * TAIL_SUBSAMPLE or not 0.0 <= q <= 0.5:
+        return by_numpy()
     virtual = (n - 1) * np.array([q, 1.0 - q])      # numpy's 'linear' virtual indices
     prev = np.floor(virtual)
     gamma = virtual - prev
@@ -219,7 +224,7 @@ def tail_quantiles(x: np.ndarray, q: float) -> tuple[float, float]:
     k_lo = (int(prev[0]), int(nxt[0]))
     k_hi = (n - 1 - int(nxt[1]), n - 1 - int(prev[1]))   # ranks from the top
     if len(below) <= k_lo[1] or len(above) <= k_hi[1]:
-        return tuple(float(v) for v in np.quantile(x, [q, 1.0 - q]))
+        return by_numpy()
     below = np.partition(below, k_lo)
     above = -np.partition(-above, k_hi)
     a = np.array([below[k_lo[0]], above[k_hi[1]]])       # x_(prev)
@@ -246,10 +251,11 @@ def sample_grid(q: np.ndarray, basis, image_shape: tuple[int, int], tile: int = 
     lo, scale, box = [], [], []
     for x, n in ((uq if every else uq[good], shape[0]),
                  (vq if every else vq[good], shape[1])):
-        a, b = core_range(x)
+        extremes = (float(x.min()), float(x.max())) if len(x) else (0.0, 0.0)
+        a, b = core_range(x, extremes)
         lo.append(a)
         scale.append(n / (b - a) if b > a else 0.0)
-        box += [float(x.min()), float(x.max())] if len(x) else [0.0, 0.0]
+        box += list(extremes)
     grid = SampleGrid(None, tuple(lo), tuple(scale), shape, None, None, None, None, None,
                       tile, tuple(box))
     n_cells = shape[0] * shape[1]

@@ -126,8 +126,11 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
     truth = refs.hard(repeats + 1)           # the first pass builds the BVH: not timed
     ref_times = refs.hard_seconds[1:]
     ref_median = float(np.median(ref_times))
-    ref_dynamic = dynamic_seconds(
-        scene, lambda: reference_shadows(scene, gbuf, view.light, shadow_eps=eps), repeats)
+
+    def embree_pass():
+        return reference_shadows(scene, gbuf, view.light, shadow_eps=eps)
+    ref_dynamic = dynamic_seconds(scene, embree_pass, repeats)     # ends with the BVH built
+    bvh_dropped = False
     out = {"scene": scene.name, "triangles": scene.num_triangles,
            "resolution": list(view.camera.resolution), "valid_pixels": int(gbuf.valid.sum()),
            "reference": {"median_seconds": ref_median, "runs": ref_times,
@@ -150,16 +153,17 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
         written = config.methods.given.get(name, ())
         static = {k: v for k, v in get(name).static_options.items() if k not in written}
         soft = get(name).kind is MethodKind.SOFT
-        if not soft:        # the BVH again (the previous method's dynamic runs dropped it)
-            reference_shadows(scene, gbuf, view.light, shadow_eps=eps)
+        if not soft and bvh_dropped:     # rebuilt untimed: the paired passes time traces
+            embree_pass()
+            bvh_dropped = False
         ev = evaluate(scene, gbuf, view.light, name, {**options, **static}, reference=refs,
-                      repeats=repeats, between=None if soft else lambda: reference_shadows(
-                          scene, gbuf, view.light, shadow_eps=eps))
+                      repeats=repeats, between=None if soft else embree_pass)
         options.setdefault("shadow_eps", eps)
         # soft methods are compared at equal error, not by ratio: no dynamic frame for them
-        dynamic = [] if ev.kind is MethodKind.SOFT else dynamic_seconds(
+        dynamic = [] if soft else dynamic_seconds(
             scene, lambda: compute_shadows(scene, gbuf, view.light, method=name, **options),
             repeats)
+        bvh_dropped = bvh_dropped or bool(dynamic)      # the dynamic runs drop the caches
         stages = {k: v for k, v in ev.timings.items() if not k.endswith("_compile")}
         compile_s = {k: v for k, v in ev.timings.items() if k.endswith("_compile")}
         counters = ev.result.scalar_counters()
