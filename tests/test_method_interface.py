@@ -193,6 +193,10 @@ def test_evaluate_times_a_between_call_before_each_warm_call(frame, monkeypatch)
     assert 0.05 <= ev.between_seconds[0] < ev.between_seconds[1]
     assert ev.between_seconds[1] >= 0.15
     assert evaluate(*frame, "brute_force", repeats=1).between_seconds == []
+    order.clear()
+    with pytest.raises(TypeError, match="'between' must be a callable"):
+        evaluate(*frame, "brute_force", repeats=1, between=0.5)
+    assert order == []                                  # refused before any call
 
 
 def test_presets_replace_defaults_explicit_options_win_and_bad_values_are_refused(frame):

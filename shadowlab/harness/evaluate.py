@@ -189,7 +189,11 @@ def evaluate(scene, gbuf, light, method: str, options: dict | None = None,
 
     Raises:
         MethodError: unknown method or option, bad value, or a light it cannot use.
+        TypeError: ``between`` is neither None nor callable (before any work).
     """
+    if between is not None and not callable(between):
+        raise TypeError(f"evaluate: 'between' must be a callable taking no arguments or "
+                        f"None, not {type(between).__name__}")
     info = get(method)
     info.check_light(light)
     options = dict(options or {})
