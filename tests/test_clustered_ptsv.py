@@ -528,11 +528,15 @@ def _loop_traversal(det):
             idx = kid.astype(np.int64) if ptr is None else ptr[level][kid]
             blo, bhi, s = lo[level][idx], hi[level][idx], sm[level][idx]
             if not all(det["axes"]):
+                # all 32 children at once (one array shape for every call: eager ops
+                # compile per shape), then the existing ones
+                every = np.uint32(node) * np.uint32(32) + np.arange(32, dtype=np.uint32)
                 with jax.enable_x64(True):
-                    ilo, ihi = ch.implicit_bounds(tree, level + 1, jnp.asarray(kid), np.float64)
+                    ilo, ihi = ch.implicit_bounds(tree, level + 1, jnp.asarray(every),
+                                                  np.float64)
                 ax = np.array(det["axes"])
-                blo = np.where(ax, blo, np.asarray(ilo))
-                bhi = np.where(ax, bhi, np.asarray(ihi))
+                blo = np.where(ax, blo, np.asarray(ilo)[kid % 32])
+                bhi = np.where(ax, bhi, np.asarray(ihi)[kid % 32])
             for j, k in enumerate(kids):
                 out["node_tests"] += 1
                 vmax = [sum(max(g[t, r, a] * blo[j, a], g[t, r, a] * bhi[j, a]) for a in range(3))
