@@ -16,12 +16,13 @@ from shadowlab.scene import (GENERATORS, Camera, PointLight, Scene, SceneError, 
 from shadowlab.scene import primitives as prim
 from shadowlab.scene.procedural import Generator, fit_clip_range
 
-NAMES = ["sphere_grid", "gate", "fuzzy", "terrain", "blobs", "soup", "atrium", "city"]
+NAMES = ["sphere_grid", "gate", "fuzzy", "terrain", "blobs", "soup", "atrium", "city",
+         "props"]
 RANDOMISED = [n for n in NAMES if n != "sphere_grid"]   # sphere_grid is regular
 # One integer size parameter per generator (for type/range errors and scaling).
 SIZE_PARAM = {"sphere_grid": "n", "gate": "trees", "fuzzy": "triangles",
               "terrain": "size", "blobs": "grid", "soup": "count", "atrium": "bays",
-              "city": "blocks"}
+              "city": "blocks", "props": "count"}
 
 
 def _same(a: Scene, b: Scene) -> bool:
@@ -69,7 +70,7 @@ def test_dtypes_and_ground(scenes):
         if name != "terrain":
             assert s.object_names[0] == "ground"
             ground = s.triangles[s.object_id == 0]
-            if name == "city":                      # a closed slab whose top is y = 0
+            if name in ("city", "props"):           # a closed slab whose top is y = 0
                 assert ground[..., 1].max() == 0.0 and ground[..., 1].min() < 0
             else:
                 assert np.all(ground[..., 1] == 0.0)
@@ -285,12 +286,50 @@ def test_soup_defects(scenes):
     (prim.cylinder(64), math.pi),
     (prim.gable_prism((0, 0, 0), (2, 1, 3)), 3.0),
     (prim.uv_sphere(40, 80), 4 / 3 * math.pi),
+    (prim.cylinder(64, 5), math.pi),
+    (prim.torus(96, 48, 0.3), 2 * math.pi ** 2 * 0.3 ** 2),
+    (prim.capsule(41, 80, 0.5), 4 / 3 * math.pi + math.pi),
 ])
 def test_closed_primitives(mesh, volume):
     v, f = mesh
     s = Scene(v, f, np.zeros(len(f)))
     assert mesh_report(s).all_closed
     assert prim.signed_volume(v, f) == pytest.approx(volume, rel=0.01)
+
+
+def test_primitive_counts_and_bad_arguments():
+    assert [len(m[1]) for m in (prim.cylinder(7, 3), prim.torus(5, 4, 0.5),
+                                prim.capsule(5, 6, 1.0))] == [2 * 7 * 4, 2 * 5 * 4, 2 * 6 * 4]
+    assert np.array_equal(prim.cylinder(9, 1)[1], prim.cylinder(9)[1])
+    v, _ = prim.capsule(7, 8, 2.0)
+    assert v[:, 1].max() == 3.0 and v[:, 1].min() == -3.0 and not np.any(v[:, 1] == 0)
+    for bad in (lambda: prim.cylinder(8, 0), lambda: prim.torus(8, 2, 0.3),
+                lambda: prim.torus(8, 8, 1.0), lambda: prim.capsule(6, 8, 1.0),
+                lambda: prim.capsule(7, 8, -1.0)):
+        with pytest.raises(ValueError):
+            bad()
+
+
+def test_props_rest_on_and_float_over_a_closed_slab(scenes):
+    s = scenes["props"]
+    rep = mesh_report(s)
+    assert rep.all_closed and rep.degenerate_triangles == 0 and s.num_objects == 41
+    assert abs(s.num_triangles - 20_000) < 0.02 * 20_000
+    assert abs(make("props", triangles=50_000).num_triangles - 50_000) < 0.02 * 50_000
+    lows = np.array([s.triangles[s.object_id == o][..., 1].min()
+                     for o in range(1, s.num_objects)])
+    resting = lows == 0.0                         # exactly on the slab's top face
+    assert 0.3 < resting.mean() < 0.7 and np.all(lows[~resting] >= 0.3)
+    assert {n.rstrip("0123456789") for n in s.object_names[1:]} == {"torus", "capsule",
+                                                                    "cylinder"}
+    for o in range(1, s.num_objects):               # every prop wound outward
+        v, f = s.vertices, s.faces[s.object_id == o]
+        assert prim.signed_volume(v, f) > 0
+    for share, rests in ((0.0, True), (1.0, False)):
+        other = make("props", floating=share, count=12, triangles=2000)
+        other_lows = [other.triangles[other.object_id == o][..., 1].min()
+                      for o in range(1, other.num_objects)]
+        assert all((low == 0.0) == rests and (rests or low >= 0.3) for low in other_lows)
 
 
 def test_grid_and_instances():

@@ -157,26 +157,79 @@ def sphere_resolution(triangles: int) -> tuple[int, int]:
     return stacks, slices
 
 
-def cylinder(segments: int) -> Mesh:
+def cylinder(segments: int, rings: int = 1) -> Mesh:
     """A closed unit cylinder: radius 1 around the +Y axis, y in [0, 1], with caps.
 
+    Args:
+        segments: sectors around the axis (>= 3); rings: bands along the axis (>= 1).
+
     Returns:
-        vertices [2 segments + 2, 3], faces [4 segments, 3].
+        vertices [(rings + 1) segments + 2, 3], faces [2 segments (rings + 1), 3]: the
+        side band by band from y = 0, then the bottom and the top cap (fans).
     """
-    if segments < 3:
-        raise ValueError(f"cylinder needs segments >= 3, got {segments}")
+    if segments < 3 or rings < 1:
+        raise ValueError(f"cylinder needs segments >= 3 and rings >= 1, got {segments}, "
+                         f"{rings}")
     phi = 2 * np.pi * np.arange(segments) / segments
     ring = np.stack([np.cos(phi), np.zeros(segments), -np.sin(phi)], 1)
-    top = ring + [0.0, 1.0, 0.0]
-    verts = np.concatenate([ring, top, [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
+    levels = [ring + [0.0, k / rings, 0.0] for k in range(rings + 1)]
+    verts = np.concatenate(levels + [[[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
     s = np.arange(segments)
     s1 = (s + 1) % segments
     n = segments
-    faces = np.concatenate([
-        np.stack([s, s1, n + s1], 1), np.stack([s, n + s1, n + s], 1),      # side
-        np.stack([np.full(n, 2 * n), s1, s], 1),                            # bottom cap
-        np.stack([np.full(n, 2 * n + 1), n + s, n + s1], 1),                # top cap
+    side = [np.concatenate([np.stack([s + k * n, s1 + k * n, s1 + (k + 1) * n], 1),
+                            np.stack([s + k * n, s1 + (k + 1) * n, s + (k + 1) * n], 1)])
+            for k in range(rings)]
+    centre = (rings + 1) * n
+    top = rings * n
+    faces = np.concatenate(side + [
+        np.stack([np.full(n, centre), s1, s], 1),                           # bottom cap
+        np.stack([np.full(n, centre + 1), top + s, top + s1], 1),           # top cap
     ])
+    return _mesh(verts, faces)
+
+
+def torus(major_segments: int, minor_segments: int, minor_radius: float) -> Mesh:
+    """A closed torus around the +Y axis: the tube's centre circle has radius 1 in the
+    y = 0 plane, the tube radius ``minor_radius`` (0 < r < 1).
+
+    Returns:
+        vertices [M m, 3], faces [2 M m, 3] (M = major_segments >= 3 sectors around the
+        axis, m = minor_segments >= 3 around the tube), wound outward.
+    """
+    if major_segments < 3 or minor_segments < 3 or not 0 < minor_radius < 1:
+        raise ValueError("torus needs major_segments, minor_segments >= 3 and 0 < "
+                         f"minor_radius < 1, got {major_segments}, {minor_segments}, "
+                         f"{minor_radius}")
+    big, small = major_segments, minor_segments
+    u = 2 * np.pi * np.arange(big)[:, None] / big
+    v = 2 * np.pi * np.arange(small)[None, :] / small
+    radial = 1 + minor_radius * np.cos(v)
+    verts = np.stack([np.cos(u) * radial, np.broadcast_to(minor_radius * np.sin(v),
+                                                           (big, small)),
+                      -np.sin(u) * radial], axis=-1).reshape(-1, 3)
+    i = np.arange(big)[:, None]
+    j = np.arange(small)[None, :]
+    a = i * small + j
+    b = i * small + (j + 1) % small
+    c = ((i + 1) % big) * small + j
+    d = ((i + 1) % big) * small + (j + 1) % small
+    faces = np.stack([np.stack([a, c, d], -1), np.stack([a, d, b], -1)], 2).reshape(-1, 3)
+    return _mesh(verts, faces)
+
+
+def capsule(stacks: int, slices: int, half_length: float) -> Mesh:
+    """A closed capsule along Y: a unit sphere (:func:`uv_sphere`, an odd number of
+    ``stacks`` so that no vertex lies on the equator) whose northern half is moved up and
+    southern half down by ``half_length`` (>= 0); the band across the equator becomes
+    the cylinder between the two hemispheres. Faces as :func:`uv_sphere`."""
+    if stacks % 2 == 0:
+        raise ValueError(f"capsule needs an odd number of stacks, got {stacks}")
+    if not half_length >= 0:
+        raise ValueError(f"capsule needs half_length >= 0, got {half_length}")
+    verts, faces = uv_sphere(stacks, slices)
+    verts = verts.copy()
+    verts[:, 1] += np.sign(verts[:, 1]) * half_length
     return _mesh(verts, faces)
 
 

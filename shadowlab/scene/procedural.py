@@ -2,9 +2,10 @@
 
 Every scene is a :class:`~shadowlab.scene.mesh.Scene` (float64 vertices in world
 units, int32 faces, one object id per distinct object); Y is up and the ground, when
-there is one, is object 0 (``"ground"``), a plane at y = 0 (for ``city``, a closed
-slab whose top face is y = 0, before the ``offset``). The same parameters and
-``seed`` always give bit-identical arrays (``numpy.random.default_rng(seed)``).
+there is one, is object 0 (``"ground"``), a plane at y = 0 (for ``city`` and
+``props``, a closed slab whose top face is y = 0, before the city's ``offset``). The
+same parameters and ``seed`` always give bit-identical arrays
+(``numpy.random.default_rng(seed)``).
 
 =============  ==========================================================  ==========
 name           what it stresses                                            default tris
@@ -24,6 +25,9 @@ atrium         columns, open arches, an open gallery and banners (the        1,6
 city           closed boxes on a closed ground slab, a wall of thin posts;     732
                ``offset`` moves it far from the origin (precision);
                ``defects`` adds needles, slivers, duplicates, T-junctions
+props          closed tori, capsules and cylinders resting on (touching) and  19,868
+               floating over a closed ground slab: contact shadows of
+               closed objects; ``triangles`` sets the size
 =============  ==========================================================  ==========
 
 Use :func:`make` (validates parameters) and :func:`default_view`; :func:`generators`
@@ -1108,3 +1112,83 @@ def _city(name: str, blocks: int, posts: int, posts_z: float, size: float, offse
         scene = Scene(scene.vertices + off, scene.faces, scene.object_id, scene.object_names,
                       scene.name)
     return scene
+
+
+# --------------------------------------------------------------------------- props
+
+PROPS_SPACING = 7.0     # ground side per sqrt(object), world units
+
+
+def _props_view(scene: Scene, params: dict) -> View:
+    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
+    w = 0.5 * max(x1 - x0, z1 - z0)
+    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    eye = (cx + 0.5 * w, y1 + 1.1 * w, cz + 1.6 * w)
+    light = PointLight((cx - 0.6 * w, y1 + 2.0 * w, cz - 0.3 * w))
+    return framed_view(scene, eye, (cx, 0.0, cz + 0.1 * w), light)
+
+
+def _prop_mesh(kind: int, per: int, rng: np.random.Generator) -> prim.Mesh:
+    """One prop of about ``per`` triangles at the origin, in world units: a torus (kind
+    0), a capsule (1) or a cylinder (2) of random proportions, centred on the origin."""
+    if kind == 0:
+        r = rng.uniform(0.2, 0.45)                     # tube radius / ring radius
+        small = max(3, round(math.sqrt(per / 2 * r)))
+        big = max(3, round(per / (2 * small)))
+        v, f = prim.torus(big, small, r)
+        return v * rng.uniform(1.0, 2.5), f
+    if kind == 1:
+        radius = rng.uniform(0.4, 1.2)
+        stacks, _ = prim.sphere_resolution(per)
+        stacks += 1 - stacks % 2                       # odd: no vertex on the equator
+        slices = max(3, round(per / (2 * (stacks - 1))))
+        v, f = prim.capsule(stacks, slices, rng.uniform(0.3, 1.8) / radius)
+        return v * radius, f
+    radius, height = rng.uniform(0.3, 1.4), rng.uniform(1.0, 5.0)
+    segments = max(8, round(math.sqrt(per)))
+    rings = max(1, round(per / (2 * segments)) - 1)
+    v, f = prim.cylinder(segments, rings)
+    return (v - [0.0, 0.5, 0.0]) * [radius, height, radius], f
+
+
+@_register(
+    "props",
+    "closed tori, capsules and cylinders resting on (touching) and floating over a "
+    "closed ground slab: contact shadows of closed objects",
+    {"count": Param(40, int, 1, 100_000, "objects (each a torus, capsule or cylinder at "
+                    "random)"),
+     "triangles": Param(20_000, int, 100, 100_000_000, "about this many triangles in all "
+                        "(shared evenly by the objects)"),
+     "floating": Param(0.5, float, 0.0, 1.0, "share of the objects lifted 0.3-3 units off "
+                       "the ground; the others rest on it, their lowest vertex on its top"),
+     "seed": Param(0, int, 0, None, "random seed")},
+    _props_view)
+def _props(name: str, count: int, triangles: int, floating: float, seed: int) -> Scene:
+    """``count`` closed props at random orientations over a square closed ground slab.
+
+    The props stand at well-separated random (x, z) points (:func:`_scatter`) of a
+    square of side ``PROPS_SPACING sqrt(count)``; a resting prop's lowest vertex lies
+    exactly on the slab's top face y = 0 (it touches the ground, as objects standing on
+    a floor do), a floating one's 0.3-3 units above it. Each prop has about
+    ``(triangles - 12) / count`` triangles (at least 64; tori 2 M m, capsules
+    2 slices (stacks - 1), cylinders 2 segments (rings + 1)); the slab, object 0
+    ("ground"), is a closed box 1.5 times the square's side with its top at y = 0.
+    """
+    rng = np.random.default_rng(seed)
+    side = PROPS_SPACING * math.sqrt(count)
+    half = 0.75 * side
+    parts = _Parts()
+    parts.add("ground", prim.box((-half, -side / 40, -half), (half, 0.0, half)))
+    per = max(64, (triangles - 12) // count)
+    kinds = rng.integers(0, 3, count)
+    rotations = prim.random_rotations(rng, count)
+    spots = _scatter(rng, count, (-side / 2, side / 2), (-side / 2, side / 2))
+    lifted = rng.random(count) < floating
+    lift = np.where(lifted, rng.uniform(0.3, 3.0, count), 0.0)
+    for i in range(count):
+        v, f = _prop_mesh(int(kinds[i]), per, rng)
+        v = v @ rotations[i].T
+        v[:, 1] -= v[:, 1].min()                       # lowest vertex exactly at y = 0
+        v += [spots[i, 0], lift[i], spots[i, 1]]
+        parts.add(f"{('torus', 'capsule', 'cylinder')[kinds[i]]}{i}", (v, f))
+    return parts.scene(name)
