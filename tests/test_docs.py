@@ -40,7 +40,8 @@ def test_benchmarks_doc_is_generated_from_the_committed_json(tmp_path):
     from shadowlab.harness import bench_report
 
     names = ("bench_ci.json", "bench_targets.json", "bench_psv.json", "bench_exact.json",
-             "bench_psv_fuzzy_1m.json", "bench_izb.json", "bench_stencil.json",
+             "bench_props.json", "bench_psv_fuzzy_1m.json", "bench_izb.json",
+             "bench_stencil.json",
              "bench_stencil_fuzzy.json", "bench_soft_1024.json", "cold_start.json",
              "cold_start_soft.json")
     committed = (ROOT / "docs" / "benchmarks.md").read_text()
