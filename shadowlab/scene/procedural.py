@@ -333,6 +333,14 @@ def _content_bounds(scene: Scene) -> np.ndarray:
     return np.stack([pts.min(axis=0), pts.max(axis=0)])
 
 
+def _content_frame(scene: Scene) -> tuple[float, float, float, float]:
+    """(cx, cz, w, top) of :func:`_content_bounds`: the centre of its x and z ranges,
+    half the larger of the two, and its largest y (the default views are placed
+    relative to these)."""
+    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
+    return 0.5 * (x0 + x1), 0.5 * (z0 + z1), 0.5 * max(x1 - x0, z1 - z0), y1
+
+
 # --------------------------------------------------------------------------- framing
 
 def fit_clip_range(scene: Scene, eye, target, up=(0.0, 1.0, 0.0), fov_y_deg: float = 50.0,
@@ -469,9 +477,7 @@ SPHERE_LIFT = 0.5       # gap between a sphere's bottom and the ground
 
 
 def _sphere_grid_view(scene: Scene, params: dict) -> View:
-    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
-    w = 0.5 * max(x1 - x0, z1 - z0)                        # half width of the grid
-    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    cx, cz, w, y1 = _content_frame(scene)                  # w: half width of the grid
     eye = (cx, 1.5 * w + y1, cz + 2.0 * w + 2.0)
     light = PointLight((cx + 0.8 * w, 2.5 * w + 2 * y1, cz - 0.4 * w))
     return framed_view(scene, eye, (cx, 0.0, cz + 0.1 * w), light)
@@ -624,9 +630,7 @@ def _gate(name: str, trees: int, leaves_per_tree: int, bars: int, seed: int) -> 
 # --------------------------------------------------------------------------- fuzzy
 
 def _fuzzy_view(scene: Scene, params: dict) -> View:
-    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
-    w = 0.5 * max(x1 - x0, z1 - z0)
-    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    cx, cz, w, y1 = _content_frame(scene)
     eye = (cx, 1.4 * w + y1, cz + 1.3 * w + 1.0)
     light = PointLight((cx - 1.2 * w, 1.3 * w + 2 * y1, cz - 0.6 * w))
     return framed_view(scene, eye, (cx, 0.0, cz + 0.05 * w), light)
@@ -732,9 +736,7 @@ BLOB_LIFT = 0.6             # gap between the cube's bottom and the ground
 
 
 def _blobs_view(scene: Scene, params: dict) -> View:
-    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
-    w = 0.5 * max(x1 - x0, z1 - z0)
-    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    cx, cz, w, y1 = _content_frame(scene)
     eye = (cx + 0.6 * w, y1 + 1.5 * w, cz + 2.8 * w)
     light = PointLight((cx - 0.6 * w, y1 + 3.5 * w, cz - 0.2 * w))
     return framed_view(scene, eye, (cx, 0.3 * y1, cz), light)
@@ -791,9 +793,7 @@ def _blobs(name: str, grid: int, blobs: int, seed: int) -> Scene:
 # --------------------------------------------------------------------------- soup
 
 def _soup_view(scene: Scene, params: dict) -> View:
-    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
-    w = 0.5 * max(x1 - x0, z1 - z0)
-    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    cx, cz, w, y1 = _content_frame(scene)
     eye = (cx, y1 + 1.2 * w, cz + 1.7 * w)
     light = PointLight((cx + 0.7 * w, y1 + 2.0 * w, cz + 0.3 * w))
     return framed_view(scene, eye, (cx, 0.0, cz - 0.05 * w), light)
@@ -1120,9 +1120,7 @@ PROPS_SPACING = 7.0     # ground side per sqrt(object), world units
 
 
 def _props_view(scene: Scene, params: dict) -> View:
-    (x0, _, z0), (x1, y1, z1) = _content_bounds(scene)
-    w = 0.5 * max(x1 - x0, z1 - z0)
-    cx, cz = 0.5 * (x0 + x1), 0.5 * (z0 + z1)
+    cx, cz, w, y1 = _content_frame(scene)
     eye = (cx + 0.5 * w, y1 + 1.1 * w, cz + 1.6 * w)
     light = PointLight((cx - 0.6 * w, y1 + 2.0 * w, cz - 0.3 * w))
     return framed_view(scene, eye, (cx, 0.0, cz + 0.1 * w), light)
