@@ -1156,7 +1156,7 @@ def _prop_mesh(kind: int, per: int, rng: np.random.Generator) -> prim.Mesh:
     {"count": Param(40, int, 1, 100_000, "objects (each a torus, capsule or cylinder at "
                     "random)"),
      "triangles": Param(20_000, int, 100, 100_000_000, "about this many triangles in all "
-                        "(shared evenly by the objects)"),
+                        "(shared evenly by the objects, at least 64 each)"),
      "floating": Param(0.5, float, 0.0, 1.0, "share of the objects lifted 0.3-3 units off "
                        "the ground; the others rest on it, their lowest vertex on its top"),
      "seed": Param(0, int, 0, None, "random seed")},
