@@ -2,8 +2,8 @@
 
 The tests are parametrized over ``shadowlab.methods.names()`` at collection time, so a
 newly registered method is covered without new test code. For every method, on two
-small scenes (a closed gate and a triangle soup; soft methods under a sphere light) in
-float32 and float64:
+small scenes (a closed gate and a triangle soup; soft methods under a sphere light; the
+exact methods also on closed props resting on a slab) in float32 and float64:
 
 - an exact method equals ``reference_shadows`` on valid pixels, except pixels that the
   float64 boundary analysis explains (``analysis.boundary``): no unexplained mismatch;
@@ -28,8 +28,11 @@ from shadowlab.scene.procedural import default_view
 
 METHODS = registry.names()
 SCENES = ("gate", "soup")
+#: the exact methods also run on closed props resting on a slab (vertices exactly on the
+#: ground's top face: contact)
+EXACT_SCENES = SCENES + ("props",)
 RES = (32, 32)
-PARAMS = {"soup": {"count": 200}}
+PARAMS = {"soup": {"count": 200}, "props": {"count": 8, "triangles": 4000}}
 
 #: per-pixel map -> the scalar it sums to
 SUMS = {"tests_per_pixel": "tests", "visited_nodes_per_pixel": "visited_nodes",
@@ -66,13 +69,13 @@ def runs(method: str, scene_name: str, precision: str):
                  for _ in range(2))
 
 
-def _cases(keep=lambda info: True):
-    return [pytest.param(m, s, id=f"{m}-{s}") for m in METHODS for s in SCENES
+def _cases(keep=lambda info: True, scenes=SCENES):
+    return [pytest.param(m, s, id=f"{m}-{s}") for m in METHODS for s in scenes
             if keep(registry.get(m))]
 
 
 CASES = _cases()
-EXACT_CASES = _cases(lambda info: info.kind is MethodKind.EXACT)
+EXACT_CASES = _cases(lambda info: info.kind is MethodKind.EXACT, EXACT_SCENES)
 SOFT_CASES = _cases(lambda info: info.soft)
 
 
