@@ -11,7 +11,8 @@ from scenes import sphere_over_plane
 SMALL = {"sphere_grid": {"n": 3, "triangles_per_sphere": 128}, "gate": {"trees": 5},
          "fuzzy": {"triangles": 2000}, "terrain": {"size": 40}, "blobs": {"grid": 20},
          "soup": {"count": 40}, "atrium": {"bays": 3, "segments": 8, "banners": 4},
-         "city": {"blocks": 3, "posts": 6, "defects": 1, "offset": [1e5, 0.0, -1e5]}}
+         "city": {"blocks": 3, "posts": 6, "defects": 1, "offset": [1e5, 0.0, -1e5]},
+         "props": {"count": 6, "triangles": 1500}}
 
 
 @pytest.mark.parametrize("name", sorted(GENERATORS))
