@@ -299,6 +299,12 @@ def _ground(parts: _Parts, x_range, z_range) -> None:
     parts.add("ground", prim.quad_grid(x_range, z_range, 0.0))
 
 
+def _ground_slab(parts: _Parts, half: float, thickness: float) -> None:
+    """The ground as a closed slab: a box [-half, half] in x and z whose top face is
+    y = 0, ``thickness`` deep (12 triangles)."""
+    parts.add("ground", prim.box((-half, -thickness, -half), (half, 0.0, half)))
+
+
 def _scatter(rng: np.random.Generator, k: int, x_range, z_range,
              fill: float = 0.6) -> np.ndarray:
     """float64 [k, 2]: k well-separated random (x, z) points in a rectangle.
@@ -1067,7 +1073,7 @@ def _city(name: str, blocks: int, posts: int, posts_z: float, size: float, offse
     half = size / 2
     cell = size / blocks
     parts = _Parts()
-    parts.add("ground", prim.box((-half, -size / 40, -half), (half, 0.0, half)))
+    _ground_slab(parts, half, size / 40)
     ij = np.stack(np.meshgrid(np.arange(blocks), np.arange(blocks), indexing="ij"), -1)
     ij = ij.reshape(-1, 2).astype(np.float64)
     x0 = -half + cell * (ij[:, 0] + 0.2)
@@ -1127,8 +1133,8 @@ def _props_view(scene: Scene, params: dict) -> View:
 
 
 def _prop_mesh(kind: int, per: int, rng: np.random.Generator) -> prim.Mesh:
-    """One prop of about ``per`` triangles at the origin, in world units: a torus (kind
-    0), a capsule (1) or a cylinder (2) of random proportions, centred on the origin."""
+    """One prop of about ``per`` triangles, centred on the origin (world units): a torus
+    (kind 0), a capsule (1) or a cylinder (2) of random proportions."""
     if kind == 0:
         r = rng.uniform(0.2, 0.45)                     # tube radius / ring radius
         small = max(3, round(math.sqrt(per / 2 * r)))
@@ -1176,7 +1182,7 @@ def _props(name: str, count: int, triangles: int, floating: float, seed: int) ->
     side = PROPS_SPACING * math.sqrt(count)
     half = 0.75 * side
     parts = _Parts()
-    parts.add("ground", prim.box((-half, -side / 40, -half), (half, 0.0, half)))
+    _ground_slab(parts, half, side / 40)
     per = max(64, (triangles - 12) // count)
     kinds = rng.integers(0, 3, count)
     rotations = prim.random_rotations(rng, count)
