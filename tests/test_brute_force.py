@@ -148,7 +148,7 @@ def _numpy_setup(tri, light):
         n = cross([hi[k] - lo[k] for k in range(3)],
                   [lx - lw * lo[0], ly - lw * lo[1], lz - lw * lo[2]])
         d = -dot(n, lo)
-        side = dot(n, c) + d
+        side = dot(n, [c[k] - lo[k] for k in range(3)])
         plane, length = oriented(n, d, side < 0)
         ca, cb = [c[k] - a[k] for k in range(3)], [c[k] - b[k] for k in range(3)]
         reach = np.maximum(np.sqrt(dot(ca, ca)), np.sqrt(dot(cb, cb)))
@@ -156,9 +156,9 @@ def _numpy_setup(tri, light):
         cols += plane
     cn = cross([v[1][k] - v[0][k] for k in range(3)], [v[2][k] - v[0][k] for k in range(3)])
     cd = -dot(cn, v[0])
-    ls = dot(cn, [lx, ly, lz]) + lw * cd
-    plane, length = oriented(cn, cd, ls < 0)
     tl = [lx - lw * v[0][0], ly - lw * v[0][1], lz - lw * v[0][2]]
+    ls = dot(cn, tl)
+    plane, length = oriented(cn, cd, ls < 0)
     ok &= (length > 0) & (np.abs(ls) > (tol * length) * np.sqrt(dot(tl, tl)))
     return np.stack(cols + plane, axis=1), ok
 

@@ -2,6 +2,8 @@
 runs: bit-equality with a plain per-triangle NumPy loop, orientation, shared-edge
 exactness, inclusion against a segment test, validity."""
 
+from fractions import Fraction
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -55,15 +57,15 @@ def _loop_setup(tri, light):
             lo, hi = (b, a) if tuple(b) < tuple(a) else (a, b)
             n = cross(sub(hi, lo), [lxyz[k] - lw * lo[k] for k in range(3)])
             d = -dot(n, lo)
-            side = dot(n, c) + d
+            side = dot(n, sub(c, lo))
             planes[t, i], length = oriented(n, d, side < 0)
             reach = max(np.sqrt(dot(sub(c, a), sub(c, a))), np.sqrt(dot(sub(c, b), sub(c, b))))
             ok &= bool(length > 0) and bool(abs(side) > (tol * length) * reach)
         cn = cross(sub(v[1], v[0]), sub(v[2], v[0]))
         cd = -dot(cn, v[0])
-        light_side = dot(cn, lxyz) + lw * cd
-        planes[t, 3], length = oriented(cn, cd, light_side < 0)
         to_light = [lxyz[k] - lw * v[0][k] for k in range(3)]
+        light_side = dot(cn, to_light)
+        planes[t, 3], length = oriented(cn, cd, light_side < 0)
         reach = np.sqrt(dot(to_light, to_light))
         ok &= bool(length > 0) and bool(abs(light_side) > (tol * length) * reach)
         valid[t] = ok
@@ -188,6 +190,48 @@ def test_degenerate_and_edge_on_triangles_are_invalid():
     _, valid = _setup(tri, np.array([0.0, 10.0, 0.0, 1.0], np.float32))
     assert valid.tolist() == [False, False, False, True]
 
+
+def _exact_orientation(a, b, c, d):
+    """Sign of det(b - a, c - a, d - a) for float corners [3], in exact rational
+    arithmetic (no rounding at all)."""
+    a, b, c, d = ([Fraction(float(x)) for x in p] for p in (a, b, c, d))
+    u, v, w = ([p[k] - a[k] for k in range(3)] for p in (b, c, d))
+    det = (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+           + u[2] * (v[0] * w[1] - v[1] * w[0]))
+    return (det > 0) - (det < 0)
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_valid_volumes_are_oriented_by_the_exact_sign_far_from_the_origin(precision):
+    """Small nearly collinear triangles hundreds of units from the origin (the local
+    coordinates of a scene far from the world origin): a triangle the setup calls valid
+    has its three edge planes and its cap oriented by the exact orientation of its
+    rounded corners and the light. Forming the orientation as n . c + d cancelled terms
+    of size |n| |corner|, so such slivers passed the degeneracy test with planes of both
+    orientations, and their "volume" was a half-space (found on `soup` far from the
+    origin: 356 of 2,160 pixels shadowed by one such triangle in float32)."""
+    rng = np.random.default_rng(11)
+    n = 1500
+    with precision_mode(precision) as dt:
+        eps = float(np.finfo(dt).eps)
+        centre = rng.uniform(100, 300, (n, 1, 3)) * rng.choice([-1, 1], (n, 1, 3))
+        axis = rng.normal(size=(n, 1, 3))
+        # off the line by 1e-2 to 1e4 of the corners' rounding
+        off = rng.normal(size=(n, 1, 3)) * (300 * eps) * 10.0 ** rng.uniform(-2, 4, (n, 1, 1))
+        t = np.sort(rng.uniform(-1, 1, (n, 3, 1)), axis=1)
+        tri = (centre + t * axis + np.array([0.0, 1.0, 0.0])[:, None] * off).astype(dt)
+        light = np.array([*(centre[0, 0] + [80.0, 60.0, -40.0]), 1.0]).astype(dt)
+        planes, valid = _setup(tri, light)
+    v, lp = tri.astype(np.float64), light[:3].astype(np.float64)
+    for k in np.flatnonzero(valid):
+        for i in range(3):
+            a, b, c = v[k, i], v[k, (i + 1) % 3], v[k, (i + 2) % 3]
+            lo, hi = (b, a) if tuple(b) < tuple(a) else (a, b)
+            normal = np.cross(hi - lo, lp - lo)        # a direction: rounding is harmless
+            assert np.sign(normal @ planes[k, i, :3]) == _exact_orientation(lo, hi, lp, c), (k, i)
+        cn = np.cross(v[k, 1] - v[k, 0], v[k, 2] - v[k, 0])
+        assert np.sign(cn @ planes[k, 3, :3]) == _exact_orientation(*v[k], lp), k
+    assert 0 < valid.sum() < n
 
 def test_directional_light_volume_is_a_prism():
     tri = np.array([[[0, 1, 0], [1, 1, 0], [0, 1, 1]]], np.float32)

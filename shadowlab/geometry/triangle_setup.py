@@ -92,16 +92,19 @@ def shadow_volume_planes(tri, light):
         to_light = [lxyz[k] - mul(lw, lo[k]) for k in range(3)]
         n = cross3(sub(hi, lo), to_light, mul)
         d = -ordered_dot(n, lo, mul)
-        side = ordered_dot(n, c, mul) + d
+        # n . (c - lo), not n . c + d: the sum cancels terms of size |n| |lo|, whose
+        # rounding can exceed the degeneracy threshold (relative to the triangle's
+        # size) when the triangle is small against its distance from the frame origin.
+        side = ordered_dot(n, sub(c, lo), mul)
         plane, length = _plane(n, d, side < 0, mul)
         reach = jnp.maximum(norm(sub(c, a)), norm(sub(c, b)))
         ok &= (length > 0) & (jnp.abs(side) > mul(mul(tol, length), reach))
         cols += plane
     cn = cross3(sub(v[1], v[0]), sub(v[2], v[0]), mul)
     cd = -ordered_dot(cn, v[0], mul)
-    light_side = ordered_dot(cn, lxyz, mul) + mul(lw, cd)
+    light_dir = [lxyz[k] - mul(lw, v[0][k]) for k in range(3)]
+    light_side = ordered_dot(cn, light_dir, mul)    # not cn . L + L.w cd, for the same reason
     plane, length = _plane(cn, cd, light_side < 0, mul)
-    to_light = norm([lxyz[k] - mul(lw, v[0][k]) for k in range(3)])
-    ok &= (length > 0) & (jnp.abs(light_side) > mul(mul(tol, length), to_light))
+    ok &= (length > 0) & (jnp.abs(light_side) > mul(mul(tol, length), norm(light_dir)))
     cols += plane
     return jnp.stack(cols, axis=1), ok

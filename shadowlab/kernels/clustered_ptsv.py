@@ -166,7 +166,7 @@ def _world_planes(t: wp.int32, tri: wp.array3d(dtype=wp.float32), light: wp.vec4
             hi = a
         n = _cross(hi - lo, lxyz - light[3] * lo)
         d = -_dot3(n, lo)
-        side = _dot3(n, c) + d
+        side = _dot3(n, c - lo)
         if side < 0.0:
             n = -n
             d = -d
@@ -176,13 +176,14 @@ def _world_planes(t: wp.int32, tri: wp.array3d(dtype=wp.float32), light: wp.vec4
         ok = ok and length > 0.0 and wp.abs(side) > (degen * length) * reach
     cn = _cross(v[1] - v[0], v[2] - v[0])
     cd = -_dot3(cn, v[0])
-    ls = _dot3(cn, lxyz) + light[3] * cd
+    light_dir = lxyz - light[3] * v[0]
+    ls = _dot3(cn, light_dir)
     if ls < 0.0:
         cn = -cn
         cd = -cd
     length = _norm(cn)
     _store_plane(planes, t, 3, cn, cd, length)
-    ok = ok and length > 0.0 and wp.abs(ls) > (degen * length) * _norm(lxyz - light[3] * v[0])
+    ok = ok and length > 0.0 and wp.abs(ls) > (degen * length) * _norm(light_dir)
     valid[t] = wp.where(ok, 1, 0)
 
 
