@@ -38,6 +38,10 @@ from shadowlab.reference.raycast import shadow_epsilon
 from shadowlab.scene import procedural
 
 PRECISIONS = ("float32", "float64")
+#: Not in the golden file: which of two coincident triangles Embree reports depends on
+#: the CPU's vector width (19 against 36 ties at offset 0, CI size, on two machines);
+#: ``gbuffer_hit_differs`` (another hit point) is compared.
+CPU_DEPENDENT_ARRAYS = ("gbuffer_triangle_ties",)
 
 
 def _methods(cfg: dict) -> list[str]:
@@ -52,7 +56,9 @@ def run(cfg: dict) -> dict:
     """Arrays: ``mismatches`` and ``unexplained`` int [P, M, K] (precision, method,
     offset), ``reference_mismatches`` / ``reference_unexplained`` [K], ``valid_pixels``
     [K], ``gbuffer_position_error`` float [K] (world units, largest over pixels whose
-    hit triangle agrees), ``gbuffer_triangle_differs`` [K], ``eps`` [K] (world units);
+    hit triangle agrees), ``gbuffer_triangle_ties`` [K] (another triangle hit at the same
+    point: coincident duplicates, shared edges), ``gbuffer_hit_differs`` [K] (another
+    hit point), ``eps`` [K] (world units);
     with ``world_coordinates``: ``world_mismatches`` [M, K] (float32) and
     ``world_reference_mismatches`` [K]."""
     name = cfg.get("scene", "city")
@@ -63,7 +69,8 @@ def run(cfg: dict) -> dict:
     mism = np.zeros((len(PRECISIONS), len(methods), k), np.int64)
     unexp = np.zeros_like(mism)
     out = {key: np.zeros(k, np.int64) for key in ("reference_mismatches", "reference_unexplained",
-                                                  "valid_pixels", "gbuffer_triangle_differs")}
+                                                  "valid_pixels", "gbuffer_triangle_ties",
+                                                  "gbuffer_hit_differs")}
     pos_err = np.zeros(k)
     eps = np.zeros(k)
     world = bool(cfg.get("world_coordinates", False))
@@ -77,10 +84,16 @@ def run(cfg: dict) -> dict:
         gbuf = sl.render_gbuffer(scene, cam)
         prim = truth64.primary_hits(scene, cam)
         same = gbuf.valid & prim["valid"] & (gbuf.triangle == prim["triangle"])
-        out["gbuffer_triangle_differs"][j] = np.count_nonzero(
-            gbuf.valid & prim["valid"] & ~same)
-        pos_err[j] = np.abs(gbuf.position - prim["position"])[same].max(initial=0.0)
+        other = gbuf.valid & prim["valid"] & ~same
         eps[j] = shadow_epsilon(scene)
+        # another triangle at the same point (within 1e-3 eps): a tie between coincident
+        # duplicates or at a shared edge, which Embree breaks differently on CPUs with
+        # other vector widths; anything else is a real disagreement
+        gap = np.linalg.norm(gbuf.position - prim["position"], axis=-1)
+        tie = other & (gap <= 1e-3 * eps[j])
+        out["gbuffer_triangle_ties"][j] = np.count_nonzero(tie)
+        out["gbuffer_hit_differs"][j] = np.count_nonzero(other & ~tie)
+        pos_err[j] = np.abs(gbuf.position - prim["position"])[same].max(initial=0.0)
         truth = truth64.gbuffer_shadows(scene, gbuf, view.light)
         out["valid_pixels"][j] = gbuf.valid.sum()
         ref = sl.reference_shadows(scene, gbuf, view.light)
@@ -142,9 +155,11 @@ def plot(arrays: dict):
     ax.semilogy(x, arrays["eps"], "k--", label="receiver offset eps")
     ax.set_xticks(x, labels)
     ax.set_xlabel("offset from the world origin (world units)")
-    differs = ", ".join(str(int(v)) for v in arrays["gbuffer_triangle_differs"])
+    ties = ", ".join(str(int(v)) for v in arrays["gbuffer_triangle_ties"])
+    differs = ", ".join(str(int(v)) for v in arrays["gbuffer_hit_differs"])
     ax.set_title(f"G-buffer vs float64 rays ({int(arrays['valid_pixels'][0])} valid px)\n"
-                 f"hit triangle differs (ties, silhouettes): {differs}", fontsize=8)
+                 f"other hit point: {differs}; same point, other triangle: {ties}",
+                 fontsize=8)
     ax.legend(fontsize=7)
     return fig
 
@@ -155,12 +170,15 @@ def _within(arrays: dict, cfg: dict) -> np.ndarray:
 
 def check(arrays: dict, cfg: dict) -> None:
     """Up to ``max_exact_offset``: no unexplained mismatch for any method, precision
-    or the reference; G-buffer positions far below the bias everywhere."""
+    or the reference, and no G-buffer hit point other than the float64 ray's (ties
+    between coincident triangles aside); G-buffer positions far below the bias
+    everywhere."""
     near = _within(arrays, cfg)
     assert np.all(arrays["unexplained"][..., near] == 0), arrays["unexplained"]
     assert np.all(arrays["reference_unexplained"][near] == 0), arrays["reference_unexplained"]
     assert np.all(arrays["unexplained"] <= arrays["mismatches"])
     assert np.all(arrays["gbuffer_position_error"] < 1e-3 * arrays["eps"])
+    assert np.all(arrays["gbuffer_hit_differs"][near] == 0), arrays["gbuffer_hit_differs"]
     assert np.all(arrays["valid_pixels"] > 0)
 
 

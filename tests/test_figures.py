@@ -48,6 +48,20 @@ def test_golden_comparison_catches_changes_and_ignores_timings(tmp_path):
     assert "no golden file" in golden.compare(tmp_path, "other", arrays)[0]
 
 
+
+def test_golden_files_leave_out_only_the_declared_cpu_dependent_arrays(tmp_path):
+    import types
+
+    module = types.SimpleNamespace(CPU_DEPENDENT_ARRAYS=("ties", "absent"))
+    arrays = {"ties": np.array([19]), "differs": np.array([0])}
+    golden.write(tmp_path, "toy", arrays, module)
+    assert np.load(tmp_path / "tests" / "golden" / "toy.npz").files == ["differs"]
+    assert golden.compare(tmp_path, "toy", {**arrays, "ties": np.array([36])}, module) == []
+    assert golden.compare(tmp_path, "toy", {**arrays, "differs": np.array([1])}, module)
+    # without the module's declaration the array is compared like any other
+    assert golden.compare(tmp_path, "toy", arrays) == [
+        "ties: new array, not in the golden file"]
+
 def test_every_experiment_has_a_golden_file():
     for name in EXPERIMENTS:
         assert (ROOT / "tests" / "golden" / f"{name}.npz").exists(), (

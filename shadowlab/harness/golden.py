@@ -10,7 +10,11 @@ anyway and compares its arrays with these (:func:`compare`):
 - timings: not at all. A timing array is one whose name contains ``seconds`` or
   ``_stage_``, one
   listed in :data:`TIMINGS` for its experiment, or one the experiment module lists
-  in its own ``TIMING_ARRAYS`` tuple (derived ratios of times count as timings).
+  in its own ``TIMING_ARRAYS`` tuple (derived ratios of times count as timings);
+- arrays an experiment module lists in ``CPU_DEPENDENT_ARRAYS``: not at all. They are
+  counts that legitimately differ between CPUs (Embree breaks ties between coincident
+  triangles differently with other vector widths); the module says why, and keeps a
+  compared array beside each for what must not differ.
 
 The full-size figures in ``figures/`` are separate and never compared.
 
@@ -59,9 +63,17 @@ def timing_keys(name: str, arrays: dict, module=None) -> set[str]:
     return {k for k in arrays if _TIMING_NAME.search(k) or k in declared}
 
 
+def uncompared_keys(name: str, arrays: dict, module=None) -> set[str]:
+    """The keys of ``arrays`` kept out of golden files: timings and the module's
+    ``CPU_DEPENDENT_ARRAYS``."""
+    return timing_keys(name, arrays, module) | (
+        set(getattr(module, "CPU_DEPENDENT_ARRAYS", ())) & set(arrays))
+
+
 def stripped(name: str, arrays: dict, module=None) -> dict[str, np.ndarray]:
-    """``arrays`` without their timings, as NumPy arrays."""
-    skip = timing_keys(name, arrays, module)
+    """``arrays`` without their uncompared keys (:func:`uncompared_keys`), as NumPy
+    arrays."""
+    skip = uncompared_keys(name, arrays, module)
     return {k: np.asarray(v) for k, v in arrays.items() if k not in skip}
 
 
