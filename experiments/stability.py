@@ -89,11 +89,11 @@ def run(cfg: dict) -> dict:
         # another triangle at the same point (within 1e-3 eps): a tie between coincident
         # duplicates or at a shared edge, which Embree breaks differently on CPUs with
         # other vector widths; anything else is a real disagreement
-        gap = np.linalg.norm(gbuf.position - prim["position"], axis=-1)
-        tie = other & (gap <= 1e-3 * eps[j])
+        delta = gbuf.position - prim["position"]
+        tie = other & (np.linalg.norm(delta, axis=-1) <= 1e-3 * eps[j])
         out["gbuffer_triangle_ties"][j] = np.count_nonzero(tie)
         out["gbuffer_hit_differs"][j] = np.count_nonzero(other & ~tie)
-        pos_err[j] = np.abs(gbuf.position - prim["position"])[same].max(initial=0.0)
+        pos_err[j] = np.abs(delta)[same].max(initial=0.0)
         truth = truth64.gbuffer_shadows(scene, gbuf, view.light)
         out["valid_pixels"][j] = gbuf.valid.sum()
         ref = sl.reference_shadows(scene, gbuf, view.light)

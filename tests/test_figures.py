@@ -48,7 +48,6 @@ def test_golden_comparison_catches_changes_and_ignores_timings(tmp_path):
     assert "no golden file" in golden.compare(tmp_path, "other", arrays)[0]
 
 
-
 def test_golden_files_leave_out_only_the_declared_cpu_dependent_arrays(tmp_path):
     import types
 
@@ -61,6 +60,7 @@ def test_golden_files_leave_out_only_the_declared_cpu_dependent_arrays(tmp_path)
     # without the module's declaration the array is compared like any other
     assert golden.compare(tmp_path, "toy", arrays) == [
         "ties: new array, not in the golden file"]
+
 
 def test_every_experiment_has_a_golden_file():
     for name in EXPERIMENTS:

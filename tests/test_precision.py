@@ -171,9 +171,8 @@ def test_degenerate_soup_triangles_far_from_the_origin(precision):
     view = procedural.default_view("soup", base, **params)
     off = np.array([86633.67, -33054.74, 33172.38])
     scene = sl.Scene(base.vertices + off, base.faces, base.object_id, base.object_names, "far soup")
-    cam = view.camera
-    cam = sl.Camera(cam.eye + off, cam.target + off, cam.up, cam.fov_y_deg, cam.near, cam.far,
-                    (48, 48))
+    cam = view.camera.replace(eye=view.camera.eye + off, target=view.camera.target + off,
+                              resolution=(48, 48))
     light = sl.PointLight(off + (99.62, 15.95, 80.78))
     _check(scene, cam, light, precision, methods=("brute_force", "psv"))
 

@@ -75,9 +75,8 @@ def frame(name: str, kind: str, magnitude: float, seed: int, res: int):
            rng.choice([-1.0, 1.0], 3) * magnitude * rng.uniform(0.3, 1.0, 3))
     moved = sl.Scene(scene.vertices + off, scene.faces, scene.object_id, scene.object_names,
                      f"{name}+offset")
-    cam = view.camera
-    cam = sl.Camera(cam.eye + off, cam.target + off, cam.up, cam.fov_y_deg, cam.near, cam.far,
-                    (res, res))
+    cam = view.camera.replace(eye=view.camera.eye + off, target=view.camera.target + off,
+                              resolution=(res, res))
     if kind == "default":
         light = view.light
         if isinstance(light, sl.PointLight):
