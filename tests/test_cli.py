@@ -361,6 +361,24 @@ def test_bench_records_the_machine_load_and_says_when_it_was_busy():
     assert machine_record(idle, idle, note="laptop")["note"] == "laptop"
 
 
+def test_the_machine_record_names_the_cpu_and_its_widest_vector_extension():
+    """``cpu_description`` reads the model and the widest SIMD level from cpuinfo text
+    (x86 and ARM layouts), and the bench's machine record carries it."""
+    from shadowlab.core.machine import cpu_description, machine_record
+
+    x86 = ("processor\t: 0\nmodel name\t: AMD EPYC 9R14\nflags\t\t: fpu sse4_2 avx avx2 "
+           "avx512f avx512bw\n\nprocessor\t: 1\nmodel name\t: other\nflags\t\t: fpu\n")
+    assert cpu_description(x86) == {"model": "AMD EPYC 9R14", "simd": "AVX-512"}
+    assert cpu_description(x86.replace(" avx512f avx512bw", ""))["simd"] == "AVX2"
+    assert cpu_description("model name : Old\nflags : fpu sse2\n")["simd"] is None
+    arm = "processor : 0\nFeatures : fp asimd evtstrm\nCPU part : 0xd0c\n"
+    assert cpu_description(arm)["simd"] == "NEON"
+    state = {"date_utc": "2026-01-01", "cpus": 2, "load_average": [0.0, 0.0, 0.0],
+             "cpu": {"model": "AMD EPYC 9R14", "simd": "AVX-512"}}
+    assert machine_record(state, state)["cpu"] == state["cpu"]
+    assert "cpu" not in machine_record(dict(state, cpu=None), state)
+
+
 def test_run_prints_what_each_frame_skipped(tmp_path, capsys):
     assert main(["run", "--set", "camera.resolution=[16,16]", "--set",
                  'methods.names=["brute_force"]', "--set",

@@ -128,6 +128,36 @@ def test_bench_report_states_each_target_from_the_latest_file():
         case("untargeted", {"m": hard(9.0)})]})])
 
 
+def test_bench_report_names_each_files_cpu_and_warns_when_they_differ():
+    """The machine line names the recorded CPU; the targets table warns when its rows come
+    from files measured on different CPUs (or on CPUs some file did not record), and
+    says nothing when they agree."""
+    from shadowlab.harness import bench_report
+
+    def results(cpu):
+        machine = {"date_utc": "2026-01-01", "cpus": 2, "load_average_before": [0.1] * 3,
+                   "load_average_after": [0.2] * 3}
+        if cpu:
+            machine["cpu"] = cpu
+        row = {"stages": {"total": 0.3}, "median_seconds": 0.3, "compile_seconds": 0.1,
+               "ratio_to_reference": 2.0,
+               "error": {"valid_pixels": 4, "mismatches": 0}}
+        return {"machine": machine, "cases": [
+            {"name": f"case-{len(str(cpu))}", "scene": "s", "triangles": 10,
+             "resolution": [2, 2], "valid_pixels": 4, "target_ratio": 3.0,
+             "reference": {"median_seconds": 0.15, "runs": [0.15]}, "methods": {"m": row}}]}
+    wide = {"model": "AMD EPYC", "simd": "AVX-512"}
+    narrow = {"model": "AMD EPYC", "simd": "AVX2"}
+    text = bench_report.render([("a.json", results(wide)), ("b.json", results(narrow))])
+    assert "2 CPU cores (AMD EPYC, AVX-512)" in text and "2 CPU cores (AMD EPYC, AVX2)" in text
+    warning = next(line for line in text.splitlines() if "different CPUs" in line)
+    assert "AMD EPYC, AVX-512: `a.json`" in warning and "AMD EPYC, AVX2: `b.json`" in warning
+    same = bench_report.render([("a.json", results(wide)), ("c.json", results(dict(wide)))])
+    assert "different CPUs" not in same
+    unrecorded = bench_report.render([("a.json", results(wide)), ("old.json", results(None))])
+    assert "CPU not recorded: `old.json`" in unrecorded
+
+
 def test_public_files_do_not_point_into_the_workspace():
     """No project file cites the private workspace, its design notes or paper files."""
     import re

@@ -58,6 +58,28 @@ def _stages(m: dict) -> str:
     return ", ".join(f"{k} {_ms(v)}" for k, v in m.get("stages", {}).items() if k != "total")
 
 
+def cpu_label(cpu: dict | None) -> str:
+    """A ``machine.cpu`` record (:func:`shadowlab.core.machine.cpu_description`) as
+    "model, SIMD", or "CPU not recorded" for files written before the bench recorded it."""
+    if not cpu:
+        return "CPU not recorded"
+    return ", ".join(x for x in (cpu.get("model") or "unknown model", cpu.get("simd")) if x)
+
+
+def _cpu_sentence(labels_with_cpus) -> list[str]:
+    """A warning when the files behind a table ran on different CPUs, or on CPUs some of
+    them did not record: ratios to Embree carry across CPUs better than times, but XLA
+    and Embree do not gain alike from wider vectors."""
+    kinds = {}
+    for label, cpu in labels_with_cpus:
+        kinds.setdefault(cpu_label(cpu), []).append(f"`{label}`")
+    if len(kinds) < 2:
+        return []
+    return ["", "These files were measured on different CPUs, or some did not record "
+            "theirs, so compare their rows with care: " + "; ".join(
+                f"{k}: {', '.join(v)}" for k, v in kinds.items()) + "."]
+
+
 def _machine(results: dict) -> list[str]:
     """Lines describing the machine and its load, if the JSON records them."""
     m = results.get("machine")
@@ -67,7 +89,8 @@ def _machine(results: dict) -> list[str]:
     if "date_utc" in m:
         parts.append(f"measured {m['date_utc']} (UTC)")
     if "cpus" in m:
-        parts.append(f"{m['cpus']} CPU cores")
+        parts.append(f"{m['cpus']} CPU cores" + (f" ({cpu_label(m['cpu'])})" if m.get("cpu")
+                                                   else ""))
     for key, label in (("load_average_before", "before"), ("load_average_after", "after")):
         if key in m:
             parts.append(f"load average {label} " + " / ".join(f"{x:.2f}" for x in m[key])
@@ -216,7 +239,7 @@ def _targets(named_results) -> list[str]:
     """The targets section: for each case with a target (its JSON's ``target_ratio``, or
     the built-in case's ``target`` for files written before the bench recorded it), the
     last of the files that holds it, and each hard method's static ratio against it."""
-    latest = {}
+    latest, cpus = {}, {}
     for label, results in named_results:
         for case in results.get("cases", []):
             name = case.get("name") or case["scene"]
@@ -226,6 +249,7 @@ def _targets(named_results) -> list[str]:
             if target is not None:
                 latest.pop(name, None)          # re-inserted: the table follows file order
                 latest[name] = (label, case, float(target))
+                cpus[label] = (results.get("machine") or {}).get("cpu")
     lines = ["## Targets", "",
              "Each case with a `target` in `shadowlab/configs/bench.toml` (the largest "
              "static ratio to the Embree pass that its issue asks of each method), from the "
@@ -252,6 +276,8 @@ def _targets(named_results) -> list[str]:
                   "| median (ms) | largest stages (ms) | file |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         lines += rows + ["", f"Met: {met} of {len(rows)}."]
+        lines += _cpu_sentence((label, cpus[label])
+                               for label in dict.fromkeys(v[0] for v in latest.values()))
     else:
         lines.append("None of these files holds a hard method's result for a case with a "
                      "target.")
