@@ -4,7 +4,8 @@ import numpy as np
 
 from shadowlab import Camera, PointLight, Scene
 from shadowlab.analysis import compare_hard, compare_soft, error_map, penumbra_mask
-from shadowlab.reference.boundary import boundary_distance, edge_tolerance, unexplained_mismatches
+from shadowlab.reference.boundary import (FACING_ULPS, boundary_distance, edge_tolerance,
+                                          facing_margin, unexplained_mismatches)
 from shadowlab.reference.raycast import GBuffer
 
 
@@ -117,3 +118,32 @@ def test_edge_distance_is_in_world_units_on_a_sliver():
     truth = np.array([[False, True, True]])
     left = unexplained_mismatches(sliver, gbuf, light, ~truth, truth)
     assert sorted(map(tuple, left)) == [(0, 2)]
+
+
+def test_mismatches_on_the_terminator_are_explained_far_from_the_origin_too():
+    # Samples on a slanted wall whose plane holds the point light: the facing test
+    # n . (L - p) is 0 up to the rounding of p, and two float64 evaluations of it (the
+    # methods' n . L - n . p, truth64's n . (L - p) relative to the light) may take
+    # either sign. A sample that faces the light by a cosine of 1e-6 is no boundary.
+    ground = Scene(np.array([[-5, 0, -5], [5, 0, -5], [5, 0, 5], [-5, 0, 5]], float),
+                   np.array([[0, 2, 1], [0, 3, 2]]), np.zeros(2))
+    n = np.array([-0.6, -0.8, 0.0])
+    along = np.array([0.8, -0.6, 0.0])                      # in the wall, across
+    for shift in (0.0, 1e5):
+        o = np.array([shift, -shift, 0.5 * shift])
+        scene = Scene(ground.vertices + o, ground.faces, ground.object_id)
+        light = PointLight(o + (1.0, 4.0, 0.1))
+        wall = [light.position + s * along + (0, 0, z) for s, z in ((1.7, 0.3), (3.1, -0.45))]
+        near = light.position + 2.3 * along
+        t = 1e-6                                            # the tilt towards the light
+        tilted = np.cos(t) * n + np.sin(t) * along * -1
+        gbuf = _gbuffer(wall + [near], [n, n, tilted])
+        pixels = np.array([[0, 0], [0, 1], [0, 2]])
+        margin = facing_margin(gbuf, light, pixels)
+        assert np.all(margin[:2] <= FACING_ULPS * np.finfo(float).eps)
+        assert margin[2] > 1e-12
+        truth = np.array([[False, True, True]])
+        dist = boundary_distance(scene, gbuf, light, pixels)
+        assert np.all(np.isinf(dist["edge"])) and np.all(np.isinf(dist["cut"]))
+        left = unexplained_mismatches(scene, gbuf, light, ~truth, truth)
+        assert sorted(map(tuple, left)) == [(0, 2)]

@@ -176,6 +176,41 @@ def test_degenerate_soup_triangles_far_from_the_origin(precision):
     light = sl.PointLight(off + (99.62, 15.95, 80.78))
     _check(scene, cam, light, precision, methods=("brute_force", "psv"))
 
+@pytest.mark.parametrize("directional", [False, True])
+def test_edges_aimed_at_the_light(directional, precision):
+    """Triangles with one edge at an angle delta (1e-7 to 1e-2 rad, or exactly 0) from the
+    direction to the light, 1e5 from the origin: their edge plane's normal
+    ``(b - a) x (L - a)`` is a small difference of large products whose direction is
+    wrong by about ulp / delta. The volumes must still be exact (within the boundary
+    tolerances, the terminator included: a triangle whose plane holds the light has
+    samples whose facing test is 0 up to rounding). Both checks bite here: without the
+    setup's degeneracy test the float32 runs fail, and without the terminator
+    explanation the point-light runs do (truth64 takes the other sign)."""
+    rng = np.random.default_rng(5)
+    off = np.array([71234.5, -20456.25, 90871.0])
+    light = (sl.DirectionalLight((-0.3, -1.0, 0.2)) if directional
+             else sl.PointLight(off + (1.0, 11.0, -2.0)))
+    k = 150
+    a = np.column_stack([rng.uniform(-6, 6, k), rng.uniform(0.5, 5, k), rng.uniform(-6, 6, k)])
+    u = (np.tile([0.3, 1.0, -0.2], (k, 1)) if directional
+         else a - light.position + off)
+    u = rng.choice([-1.0, 1.0], (k, 1)) * u / np.linalg.norm(u, axis=1, keepdims=True)
+    side = np.cross(u, rng.normal(size=(k, 3)))
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    delta = np.where(rng.random(k) < 0.2, 0.0, 10 ** rng.uniform(-7, -2, k))
+    b = a + 1.5 * (u + delta[:, None] * side)
+    c = a + 0.7 * u + rng.uniform(0.1, 1.0, (k, 1)) * np.cross(u, side)
+    ground = [[-10, 0, -10], [10, 0, -10], [10, 0, 10], [-10, 0, 10]]
+    verts = np.concatenate([ground, np.stack([a, b, c], 1).reshape(-1, 3)]) + off
+    faces = np.concatenate([[[0, 2, 1], [0, 3, 2]], 4 + np.arange(3 * k).reshape(k, 3)])
+    ids = np.concatenate([[0, 0], 1 + np.arange(k)])
+    scene = sl.Scene(verts, faces, ids, tuple(f"o{i}" for i in range(k + 1)), "aimed edges")
+    cam = sl.Camera(off + (0.0, 16.0, 14.0), off, fov_y_deg=55, near=0.5, far=100.0,
+                    resolution=(64, 64))
+    gbuf, truth = _check(scene, cam, light, precision, methods=("brute_force", "psv", "ptsv"))
+    assert 0 < (~truth & gbuf.valid).sum() < gbuf.valid.sum()
+
+
 def test_closed_box_seams_leak_no_light(precision):
     """Samples whose segment to the light passes exactly through a shared (diagonal)
     edge of a floating closed box, far from the origin, are shadowed by every method."""

@@ -3,8 +3,11 @@
 The Embree reference works in float32, the methods in float32 or float64, so the two
 may disagree where the segment from a sample to the light passes within rounding of
 a caster's edge, or crosses a caster just at the self-shadowing cut ``eps`` above the
-sample's tangent plane. For each mismatched pixel this module recomputes, in float64
-and against every triangle, how close the segment comes to such a boundary.
+sample's tangent plane, or where the sample's own surface is edge-on to the light (the
+terminator: the facing test ``n . (L.xyz - L.w p) > 0`` of a sample whose true value
+is 0 has the sign of its rounding, which differs between two float64 evaluations in
+different order or frames). For each mismatched pixel this module recomputes, in
+float64 and against every triangle, how close the segment comes to such a boundary.
 
 Edge distances are in world units, measured in the caster's plane from the crossing
 point to the nearest edge line, and compared with ``EDGE_ULPS`` float32 spacings of the
@@ -25,6 +28,24 @@ from ..scene.view import Light, hard_light
 
 EDGE_ULPS = 64            # float32 spacings of the coordinate magnitude (edge tolerance)
 CUT_TOLERANCE = 1e-3      # relative distance of the crossing height from eps
+FACING_ULPS = 64          # float64 spacings of the facing test's magnitude (terminator)
+
+
+def facing_margin(gbuf: GBuffer, light: Light, pixels: np.ndarray) -> np.ndarray:
+    """float64 [K]: for pixels [K, 2] (row, col), the facing test ``n . (L.xyz - L.w p)``
+    in the G-buffer's coordinates (world, for ``render_gbuffer``'s) relative to its
+    rounding scale ``|n| (|L.xyz| + |L.w| |p|)`` (Euclidean norms). Two float64
+    evaluations of the test (in another order, or in a frame-local copy of the
+    G-buffer) differ by a few float64 spacings of that scale, so a margin within
+    ``FACING_ULPS`` spacings is a sample on the terminator."""
+    lh = hard_light(light).homogeneous
+    idx = tuple(np.asarray(pixels).reshape(-1, 2).T)
+    p, n = gbuf.position[idx], gbuf.normal[idx]
+    value = n @ lh[:3] - lh[3] * np.einsum("ij,ij->i", n, p)
+    scale = np.linalg.norm(n, axis=1) * (np.linalg.norm(lh[:3]) + abs(lh[3])
+                                         * np.linalg.norm(p, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(scale > 0, np.abs(value) / scale, np.inf)
 
 
 def edge_tolerance(scene: Scene, light: Light, origin=None) -> float:
@@ -103,9 +124,14 @@ def boundary_distance(scene: Scene, gbuf: GBuffer, light: Light, pixels: np.ndar
 def unexplained_mismatches(scene: Scene, gbuf: GBuffer, light: Light, lit: np.ndarray,
                            truth: np.ndarray, shadow_eps: float = DEFAULT_SHADOW_EPS) -> np.ndarray:
     """int [K, 2]: mismatched valid pixels that lie on no shadow boundary (within
-    ``edge_tolerance(scene, light, gbuf.origin)`` world units of a caster's edge or
-    ``CUT_TOLERANCE`` of the cut)."""
+    ``edge_tolerance(scene, light, gbuf.origin)`` world units of a caster's edge,
+    ``CUT_TOLERANCE`` of the cut, or ``FACING_ULPS`` float64 spacings of the terminator,
+    :func:`facing_margin`)."""
     bad = np.argwhere((np.asarray(lit, bool) != np.asarray(truth, bool)) & gbuf.valid)
+    if len(bad) == 0:
+        return bad
+    terminator = facing_margin(gbuf, light, bad) <= FACING_ULPS * np.finfo(np.float64).eps
+    bad = bad[~terminator]
     if len(bad) == 0:
         return bad
     tol = edge_tolerance(scene, light, gbuf.origin)
