@@ -63,8 +63,9 @@ def machine_state() -> dict:
 
 
 def machine_record(before: dict, after: dict, note: str | None = None) -> dict:
-    """The ``machine`` entry of a bench, cold-start or figures JSON: the CPU, the load
-    before and after the run, and a note that says when the machine was busy when the run started (1-minute load above
+    """The ``machine`` entry of a bench, cold-start or figures JSON: the CPU (where
+    ``before`` describes it), the load before and after the run, and a note that says
+    when the machine was busy when the run started (1-minute load above
     ``BUSY_LOAD_PER_CORE`` per core) besides the user's ``note``. The load after the run
     is recorded but not judged: it counts the run's own threads."""
     rec = {"date_utc": before["date_utc"], "cpus": before["cpus"]}
