@@ -364,7 +364,7 @@ def test_bench_records_the_machine_load_and_says_when_it_was_busy():
 def test_the_machine_record_names_the_cpu_and_its_widest_vector_extension():
     """``cpu_description`` reads the model and the widest SIMD level from cpuinfo text
     (x86 and ARM layouts), and the bench's machine record carries it."""
-    from shadowlab.core.machine import cpu_description, machine_record
+    from shadowlab.core.machine import cpu_description, machine_record, machine_state
 
     x86 = ("processor\t: 0\nmodel name\t: AMD EPYC 9R14\nflags\t\t: fpu sse4_2 avx avx2 "
            "avx512f avx512bw\n\nprocessor\t: 1\nmodel name\t: other\nflags\t\t: fpu\n")
@@ -377,6 +377,9 @@ def test_the_machine_record_names_the_cpu_and_its_widest_vector_extension():
              "cpu": {"model": "AMD EPYC 9R14", "simd": "AVX-512"}}
     assert machine_record(state, state)["cpu"] == state["cpu"]
     assert "cpu" not in machine_record(dict(state, cpu=None), state)
+    # given text never borrows this host's model; this host's record always has the keys
+    assert cpu_description("flags : fpu avx2\n") == {"model": None, "simd": "AVX2"}
+    assert set(machine_state()["cpu"]) == {"model", "simd"}
 
 
 def test_run_prints_what_each_frame_skipped(tmp_path, capsys):

@@ -134,7 +134,7 @@ def test_bench_report_names_each_files_cpu_and_warns_when_they_differ():
     says nothing when they agree."""
     from shadowlab.harness import bench_report
 
-    def results(cpu):
+    def results(cpu, case_name, skipped=False):
         machine = {"date_utc": "2026-01-01", "cpus": 2, "load_average_before": [0.1] * 3,
                    "load_average_after": [0.2] * 3}
         if cpu:
@@ -143,19 +143,28 @@ def test_bench_report_names_each_files_cpu_and_warns_when_they_differ():
                "ratio_to_reference": 2.0,
                "error": {"valid_pixels": 4, "mismatches": 0}}
         return {"machine": machine, "cases": [
-            {"name": f"case-{len(str(cpu))}", "scene": "s", "triangles": 10,
+            {"name": case_name, "scene": "s", "triangles": 10,
              "resolution": [2, 2], "valid_pixels": 4, "target_ratio": 3.0,
-             "reference": {"median_seconds": 0.15, "runs": [0.15]}, "methods": {"m": row}}]}
+             "reference": {"median_seconds": 0.15, "runs": [0.15]},
+             "methods": {"m": {"skipped": "not here"} if skipped else row}}]}
     wide = {"model": "AMD EPYC", "simd": "AVX-512"}
     narrow = {"model": "AMD EPYC", "simd": "AVX2"}
-    text = bench_report.render([("a.json", results(wide)), ("b.json", results(narrow))])
+    text = bench_report.render([("a.json", results(wide, "c1")),
+                                ("b.json", results(narrow, "c2"))])
     assert "2 CPU cores (AMD EPYC, AVX-512)" in text and "2 CPU cores (AMD EPYC, AVX2)" in text
     warning = next(line for line in text.splitlines() if "different CPUs" in line)
     assert "AMD EPYC, AVX-512: `a.json`" in warning and "AMD EPYC, AVX2: `b.json`" in warning
-    same = bench_report.render([("a.json", results(wide)), ("c.json", results(dict(wide)))])
+    same = bench_report.render([("a.json", results(wide, "c1")),
+                                ("c.json", results(dict(wide), "c2"))])
+    assert "`c1` |" in same and "`c2` |" in same          # both files hold rows
     assert "different CPUs" not in same
-    unrecorded = bench_report.render([("a.json", results(wide)), ("old.json", results(None))])
+    unrecorded = bench_report.render([("a.json", results(wide, "c1")),
+                                      ("old.json", results(None, "c2"))])
     assert "CPU not recorded: `old.json`" in unrecorded
+    # a file whose targeted case has skipped methods only adds no row, and no warning
+    no_rows = bench_report.render([("a.json", results(wide, "c1")),
+                                   ("b.json", results(narrow, "c2", skipped=True))])
+    assert "different CPUs" not in no_rows
 
 
 def test_public_files_do_not_point_into_the_workspace():

@@ -16,7 +16,7 @@ import shadowlab as sl
 from shadowlab.core import frame as fr
 from shadowlab.methods import registry
 from shadowlab.reference import truth64
-from shadowlab.reference.boundary import unexplained_mismatches
+from shadowlab.reference.boundary import FACING_ULPS, facing_margin, unexplained_mismatches
 from shadowlab.reference.raycast import shadow_epsilon
 from shadowlab.scene import procedural
 
@@ -176,6 +176,7 @@ def test_degenerate_soup_triangles_far_from_the_origin(precision):
     light = sl.PointLight(off + (99.62, 15.95, 80.78))
     _check(scene, cam, light, precision, methods=("brute_force", "psv"))
 
+
 @pytest.mark.parametrize("directional", [False, True])
 def test_edges_aimed_at_the_light(directional, precision):
     """Triangles with one edge at an angle delta (1e-7 to 1e-2 rad, or exactly 0) from the
@@ -209,6 +210,9 @@ def test_edges_aimed_at_the_light(directional, precision):
                     resolution=(64, 64))
     gbuf, truth = _check(scene, cam, light, precision, methods=("brute_force", "psv", "ptsv"))
     assert 0 < (~truth & gbuf.valid).sum() < gbuf.valid.sum()
+    if not directional:     # the terminator explanation is needed here (see the docstring)
+        margin = facing_margin(gbuf, light, np.argwhere(gbuf.valid))
+        assert (margin <= FACING_ULPS * np.finfo(np.float64).eps).any()
 
 
 def test_closed_box_seams_leak_no_light(precision):

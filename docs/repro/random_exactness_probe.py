@@ -106,23 +106,28 @@ def run_job(job, res: int, methods) -> dict:
            "valid": int(gbuf.valid.sum()), "lit": int(truth.sum()),
            "reference": len(unexplained_mismatches(scene, gbuf, light, ref, truth)),
            "failures": []}
-    runs = [(c, p) for c in ("off", "all") for p in (("float32", "float64") if c == "off"
-                                                      else ("float32",))]
+    row["failures"] = failing_runs(scene, gbuf, light, truth, methods)
+    return row
+
+
+def failing_runs(scene, gbuf, light, truth, methods) -> list[dict]:
+    """Each method with ``cull_casters`` off (float32 and float64) and ``all``
+    (float32): the runs with mismatches against ``truth`` that ``reference.boundary``
+    cannot explain, or that raised (a crash is a finding too)."""
+    out = []
     for m in methods:
-        for cull, precision in runs:
+        for cull, precision in (("off", "float32"), ("off", "float64"), ("all", "float32")):
+            run = {"method": m, "cull": cull, "precision": precision}
             try:
                 lit = np.asarray(sl.compute_shadows(scene, gbuf, light, method=m,
                                                     precision=precision,
                                                     cull_casters=cull).lit)
                 n = len(unexplained_mismatches(scene, gbuf, light, lit, truth))
                 if n:
-                    row["failures"].append({"method": m, "cull": cull, "precision": precision,
-                                            "unexplained": n,
-                                            "mismatches": int((lit != truth).sum())})
-            except Exception as exc:           # a crash is a finding too
-                row["failures"].append({"method": m, "cull": cull, "precision": precision,
-                                        "error": f"{type(exc).__name__}: {exc}"[:300]})
-    return row
+                    out.append(dict(run, unexplained=n, mismatches=int((lit != truth).sum())))
+            except Exception as exc:
+                out.append(dict(run, error=f"{type(exc).__name__}: {exc}"[:300]))
+    return out
 
 
 def main(argv=None) -> int:
@@ -146,10 +151,21 @@ def main(argv=None) -> int:
         print(f"{row['scene']:12s} {row['light']:13s} offset {row['offset']:g}: valid "
               f"{row['valid']}, reference {row['reference']}, failing runs "
               f"{len(row['failures'])}{flag}", flush=True)
-        for f in row["failures"]:
-            print("    ", f, flush=True)
-    if a.out:
-        with open(a.out, "w") as fh:
+        print_failures(row)
+    return finish(rows, a.out)
+
+
+def print_failures(row: dict) -> None:
+    """One line per failing run of a job's row."""
+    for f in row["failures"]:
+        print("    ", f, flush=True)
+
+
+def finish(rows: list[dict], out: str | None) -> int:
+    """Write the rows to ``out`` (JSON; None: nowhere); the exit status: 1 if any run
+    failed or the Embree reference had unexplained mismatches, else 0."""
+    if out:
+        with open(out, "w") as fh:
             json.dump(rows, fh, indent=1)
     return int(any(r["failures"] or r["reference"] for r in rows))
 

@@ -33,9 +33,11 @@ SIMD_LEVELS = (("avx512f", "AVX-512"), ("avx2", "AVX2"), ("avx", "AVX"),
 def cpu_description(cpuinfo: str | None = None) -> dict:
     """The CPU's model name and widest vector extension: ``{"model": str | None, "simd":
     str | None}``. Read from ``/proc/cpuinfo`` (or the given text of such a file) on
-    Linux; elsewhere the model is ``platform.processor()`` and ``simd`` None. ARM's
-    Advanced SIMD is reported as "NEON" (flag ``asimd``)."""
-    if cpuinfo is None:
+    Linux; where this host's file names no model, or cannot be read, the model is
+    ``platform.processor()`` (given text gets no such fallback), and without the file
+    ``simd`` is None. ARM's Advanced SIMD is reported as "NEON" (flag ``asimd``)."""
+    own = cpuinfo is None                  # this host: its platform may name the model
+    if own:
         try:
             with open("/proc/cpuinfo") as f:
                 cpuinfo = f.read()
@@ -51,7 +53,8 @@ def cpu_description(cpuinfo: str | None = None) -> dict:
     simd = next((name for flag, name in SIMD_LEVELS if flag in flags), None)
     if simd is None and "asimd" in flags:
         simd = "NEON"
-    model = fields.get("model name") or fields.get("cpu model") or platform.processor()
+    model = fields.get("model name") or fields.get("cpu model") \
+        or (platform.processor() if own else None)
     return {"model": model or None, "simd": simd}
 
 

@@ -249,7 +249,7 @@ def _targets(named_results) -> list[str]:
             if target is not None:
                 latest.pop(name, None)          # re-inserted: the table follows file order
                 latest[name] = (label, case, float(target))
-                cpus[label] = (results.get("machine") or {}).get("cpu")
+        cpus[label] = (results.get("machine") or {}).get("cpu")
     lines = ["## Targets", "",
              "Each case with a `target` in `shadowlab/configs/bench.toml` (the largest "
              "static ratio to the Embree pass that its issue asks of each method), from the "
@@ -257,13 +257,14 @@ def _targets(named_results) -> list[str]:
              "Embree passes); paired x (an Embree pass before each of the method's warm "
              "calls, in files since 2026-12-07) shows how much a drift of the machine's "
              "speed moved it. A missed row names the method's two largest stages.", ""]
-    rows, met = [], 0
+    rows, met, row_files = [], 0, []
     for name, (label, case, target) in latest.items():
         for method, m in case["methods"].items():
             if "skipped" in m or m.get("ratio_to_reference") is None:
                 continue
             verdict = target_verdict(m["ratio_to_reference"], target)
             met += verdict == "met"
+            row_files.append(label)
             stages = sorted(((v, k) for k, v in m.get("stages", {}).items() if k != "total"),
                             reverse=True)[:2]
             where = ", ".join(f"{k} {_ms(v)}" for v, k in stages) if verdict == "missed" else ""
@@ -276,8 +277,7 @@ def _targets(named_results) -> list[str]:
                   "| median (ms) | largest stages (ms) | file |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         lines += rows + ["", f"Met: {met} of {len(rows)}."]
-        lines += _cpu_sentence((label, cpus[label])
-                               for label in dict.fromkeys(v[0] for v in latest.values()))
+        lines += _cpu_sentence((label, cpus[label]) for label in dict.fromkeys(row_files))
     else:
         lines.append("None of these files holds a hard method's result for a case with a "
                      "target.")
