@@ -16,7 +16,8 @@ import shadowlab as sl
 from shadowlab.core import frame as fr
 from shadowlab.methods import registry
 from shadowlab.reference import truth64
-from shadowlab.reference.boundary import FACING_ULPS, facing_margin, unexplained_mismatches
+from shadowlab.reference.boundary import (FACING_TOLERANCE, facing_margin,
+                                          unexplained_mismatches)
 from shadowlab.reference.raycast import shadow_epsilon
 from shadowlab.scene import procedural
 
@@ -212,7 +213,7 @@ def test_edges_aimed_at_the_light(directional, precision):
     assert 0 < (~truth & gbuf.valid).sum() < gbuf.valid.sum()
     if not directional:     # the terminator explanation is needed here (see the docstring)
         margin = facing_margin(gbuf, light, np.argwhere(gbuf.valid))
-        assert (margin <= FACING_ULPS * np.finfo(np.float64).eps).any()
+        assert (margin <= FACING_TOLERANCE).any()
 
 
 def test_closed_box_seams_leak_no_light(precision):

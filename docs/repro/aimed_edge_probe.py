@@ -114,8 +114,7 @@ def run_job(seed: int, kind: str, offset: float, res: int, triangles: int, metho
            "ill_conditioned_kept_f32": [kept, of],
            "shadowed": int((~truth & gbuf.valid).sum()),
            "reference": len(unexplained_mismatches(scene, gbuf, light, ref, truth)),
-           "failures": []}
-    row["failures"] = failing_runs(scene, gbuf, light, truth, methods)
+           "failures": failing_runs(scene, gbuf, light, truth, methods)}
     return row
 
 

@@ -105,8 +105,7 @@ def run_job(job, res: int, methods) -> dict:
     row = {"scene": name, "light": kind, "offset": magnitude, "seed": seed,
            "valid": int(gbuf.valid.sum()), "lit": int(truth.sum()),
            "reference": len(unexplained_mismatches(scene, gbuf, light, ref, truth)),
-           "failures": []}
-    row["failures"] = failing_runs(scene, gbuf, light, truth, methods)
+           "failures": failing_runs(scene, gbuf, light, truth, methods)}
     return row
 
 

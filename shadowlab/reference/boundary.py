@@ -29,6 +29,7 @@ from ..scene.view import Light, hard_light
 EDGE_ULPS = 64            # float32 spacings of the coordinate magnitude (edge tolerance)
 CUT_TOLERANCE = 1e-3      # relative distance of the crossing height from eps
 FACING_ULPS = 64          # float64 spacings of the facing test's magnitude (terminator)
+FACING_TOLERANCE = FACING_ULPS * float(np.finfo(np.float64).eps)   # on facing_margin
 
 
 def facing_margin(gbuf: GBuffer, light: Light, pixels: np.ndarray) -> np.ndarray:
@@ -37,10 +38,11 @@ def facing_margin(gbuf: GBuffer, light: Light, pixels: np.ndarray) -> np.ndarray
     rounding scale ``|n| (|L.xyz| + |L.w| |p|)`` (Euclidean norms). Two float64
     evaluations of the test (in another order, or in a frame-local copy of the
     G-buffer) differ by a few float64 spacings of that scale, so a margin within
-    ``FACING_ULPS`` spacings is a sample on the terminator. Its lit value is then the
-    facing test's alone: any crossing of its segment lies at a height ``t n . d`` of at
-    most that margin times the scale (t <= 1 for a point light; t up to the scene's
-    size along a unit d for a directional one), about 1e-14 of the distances involved,
+    ``FACING_ULPS`` spacings (``FACING_TOLERANCE``) is a sample on the terminator. Its
+    lit value is then the facing test's alone: any crossing of its segment lies at a
+    height ``t n . d`` of at most that margin times the scale (t <= 1 for a point light;
+    t up to the scene's size along a unit d for a directional one), about 1e-14 of the
+    distances involved,
     far below the cut ``eps`` unless ``shadow_eps`` is set below about 1e-12 or the
     scene lies 1e9 diagonals from the origin."""
     lh = hard_light(light).homogeneous
@@ -135,8 +137,7 @@ def unexplained_mismatches(scene: Scene, gbuf: GBuffer, light: Light, lit: np.nd
     bad = np.argwhere((np.asarray(lit, bool) != np.asarray(truth, bool)) & gbuf.valid)
     if len(bad) == 0:
         return bad
-    terminator = facing_margin(gbuf, light, bad) <= FACING_ULPS * np.finfo(np.float64).eps
-    bad = bad[~terminator]
+    bad = bad[facing_margin(gbuf, light, bad) > FACING_TOLERANCE]
     if len(bad) == 0:
         return bad
     tol = edge_tolerance(scene, light, gbuf.origin)
