@@ -42,9 +42,8 @@ def facing_margin(gbuf: GBuffer, light: Light, pixels: np.ndarray) -> np.ndarray
     lit value is then the facing test's alone: any crossing of its segment lies at a
     height ``t n . d`` of at most that margin times the scale (t <= 1 for a point light;
     t up to the scene's size along a unit d for a directional one), about 1e-14 of the
-    distances involved,
-    far below the cut ``eps`` unless ``shadow_eps`` is set below about 1e-12 or the
-    scene lies 1e9 diagonals from the origin."""
+    distances involved, far below the cut ``eps`` unless ``shadow_eps`` is set below
+    about 1e-12 or the scene lies 1e9 diagonals from the origin."""
     lh = hard_light(light).homogeneous
     idx = tuple(np.asarray(pixels).reshape(-1, 2).T)
     p, n = gbuf.position[idx], gbuf.normal[idx]
