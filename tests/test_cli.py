@@ -382,6 +382,39 @@ def test_the_machine_record_names_the_cpu_and_its_widest_vector_extension():
     assert set(machine_state()["cpu"]) == {"model", "simd"}
 
 
+def test_the_machine_record_says_when_the_hypervisor_took_cpu_time():
+    """``steal_seconds`` reads the steal column of /proc/stat text; the machine record
+    carries the steal between its two states and notes a share above ``STEAL_SHARE`` of
+    the cores' time; a state without steal time gives no record."""
+    import os
+
+    from shadowlab.core.machine import (STEAL_SHARE, cpu_clock, machine_record,
+                                        steal_between, steal_seconds)
+
+    hz = os.sysconf("SC_CLK_TCK")
+    stat = "cpu  4705 0 1500 90000 400 0 30 250 0 0\ncpu0 2000 0 700 45000 200 0 15 999 0 0\n"
+    assert steal_seconds(stat) == 250 / hz               # the aggregate line, not cpu0's
+    assert steal_seconds("cpu  4705 0 1500 90000 400 0 30\n") is None   # no steal column
+    assert steal_seconds("intr 12 3\n") is None
+    start = {"date_utc": "2026-01-01", "cpus": 2, "load_average": [0.0] * 3,
+             "clock": 100.0, "steal": 10.0}
+    quiet = dict(start, clock=110.0, steal=10.0 + 20 * STEAL_SHARE / 2)
+    shared = dict(start, clock=110.0, steal=10.0 + 20 * STEAL_SHARE * 2)
+    assert steal_between(start, quiet) == {"seconds": round(10 * STEAL_SHARE, 2),
+                                           "share": round(STEAL_SHARE / 2, 4)}
+    rec = machine_record(start, quiet)
+    assert rec["steal"]["share"] == STEAL_SHARE / 2 and "note" not in rec
+    rec = machine_record(start, shared)
+    assert rec["steal"]["share"] == 2 * STEAL_SHARE
+    assert "another guest shared the host" in rec["note"]
+    assert "steal" not in machine_record(dict(start, steal=None), shared)
+    assert steal_between(start, dict(start)) is None      # no wall time passed
+    # this host's clocks: a monotonic clock and, on Linux, the steal since boot
+    now = cpu_clock()
+    assert now["cpus"] >= 1 and now["clock"] > 0
+    assert now["steal"] is None or now["steal"] >= 0
+
+
 def test_run_prints_what_each_frame_skipped(tmp_path, capsys):
     assert main(["run", "--set", "camera.resolution=[16,16]", "--set",
                  'methods.names=["brute_force"]', "--set",

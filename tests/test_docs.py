@@ -167,6 +167,43 @@ def test_bench_report_names_each_files_cpu_and_warns_when_they_differ():
     assert "different CPUs" not in no_rows
 
 
+def test_bench_report_marks_the_times_taken_while_the_hypervisor_took_cpu_time():
+    """Steal above ``STEAL_SHARE`` of the cores' time marks the method's verdict in the
+    targets table and is named under its case; the machine line shows the run's steal;
+    steal at or below the share, or not recorded, marks nothing."""
+    from shadowlab.core.machine import STEAL_SHARE
+    from shadowlab.harness import bench_report
+
+    def results(method_share, case_share=0.0):
+        row = {"stages": {"total": 0.3}, "median_seconds": 0.3, "compile_seconds": 0.1,
+               "ratio_to_reference": 2.0, "error": {"valid_pixels": 4, "mismatches": 0}}
+        if method_share is not None:
+            row["steal"] = {"seconds": 1.25, "share": method_share}
+        machine = {"date_utc": "2026-01-01", "cpus": 2,
+                   "steal": {"seconds": 0.5, "share": 0.004}}
+        return {"machine": machine, "cases": [
+            {"name": "c", "scene": "s", "triangles": 10, "resolution": [2, 2],
+             "valid_pixels": 4, "target_ratio": 3.0,
+             "steal": {"seconds": 2.0, "share": case_share},
+             "reference": {"median_seconds": 0.15, "runs": [0.15]},
+             "methods": {"m": row, "other": dict(row, steal={"seconds": 0.0, "share": 0.0})}}]}
+    text = bench_report.render([("a.json", results(2 * STEAL_SHARE))])
+    row = next(line for line in text.splitlines() if line.startswith("| `c` |") and "`m`" in line)
+    assert f"**met** (steal {200 * STEAL_SHARE:.1f} %)" in row
+    other = next(line for line in text.splitlines() if line.startswith("| `c` |")
+                 and "`other`" in line)
+    assert "steal" not in other
+    remark = next(line for line in text.splitlines() if line.startswith("Steal above"))
+    assert f"`m` 1.25 s ({200 * STEAL_SHARE:.1f} % of the cores' time)" in remark
+    assert "`other`" not in remark and "whole case" not in remark
+    assert "(steal) 0.50 s (0.4 % of the cores' time)" in text
+    whole = bench_report.render([("a.json", results(None, case_share=3 * STEAL_SHARE))])
+    assert "the whole case 2.00 s" in whole and "(steal " not in whole
+    for quiet in (STEAL_SHARE, None):
+        text = bench_report.render([("a.json", results(quiet))])
+        assert "Steal above" not in text and "(steal " not in text
+
+
 def test_public_files_do_not_point_into_the_workspace():
     """No project file cites the private workspace, its design notes or paper files."""
     import re

@@ -270,6 +270,9 @@ def test_a_stopped_figures_run_resumes_its_finished_points(tmp_path):
     assert _calls(tmp_path) == [2, 3]                      # only the unfinished points
     meta = json.loads((out / "toy.json").read_text())
     assert [p["label"] for p in meta["checkpoint"]["resumed"]] == ["i=0", "i=1"]
+    for point in meta["checkpoint"]["resumed"]:           # where its time came from
+        steal = point["steal"]
+        assert steal is None or (steal["seconds"] >= 0 and 0 <= steal["share"] <= 1)
     machine = meta["machine"]                               # the load the run was timed under
     assert machine["cpus"] >= 1 and len(machine["load_average_after"]) == 3
     assert not (out / FOLDER).exists()                     # removed once written

@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core import io
-from ..core.machine import BUSY_LOAD_PER_CORE, machine_record, machine_state  # noqa: F401
+from ..core.machine import (BUSY_LOAD_PER_CORE, cpu_clock, machine_record,  # noqa: F401
+                             machine_state, steal_between)
 from ..scene import caches
 from ..analysis import compare_soft
 from .evaluate import References, evaluate
@@ -116,6 +117,7 @@ def embree_seconds_beyond(curve: list[dict], error: dict) -> dict:
 
 def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
     """Benchmark the first frame of ``config`` (a RunConfig); returns a JSON-able dict."""
+    case_clock = cpu_clock()
     scene = config.build_scene()
     view = config.views(scene)[0]
     gbuf = render_gbuffer(scene, view.camera)
@@ -156,8 +158,10 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
         if not soft and bvh_dropped:     # rebuilt untimed: the paired passes time traces
             embree_pass()
             bvh_dropped = False
+        clock = cpu_clock()
         ev = evaluate(scene, gbuf, view.light, name, {**options, **static}, reference=refs,
                       repeats=repeats, between=None if soft else embree_pass)
+        steal = steal_between(clock, cpu_clock())       # over its compile and warm runs
         options.setdefault("shadow_eps", eps)
         # soft methods are compared at equal error, not by ratio: no dynamic frame for them
         dynamic = [] if soft else dynamic_seconds(
@@ -176,6 +180,8 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
                "dynamic_ratio": float(np.median(dynamic)) / out["reference"][
                    "dynamic_median_seconds"] if dynamic else None,
                "counters": counters, "error": ev.error}
+        if steal is not None:
+            row["steal"] = steal
         if ev.between_seconds:
             paired = float(np.median(ev.between_seconds))
             row["paired_reference_runs"] = ev.between_seconds
@@ -193,6 +199,9 @@ def bench_case(config, repeats: int = 5, progress: bool = True) -> dict:
         if "tests" in counters and ev.seconds > 0:
             row["tests_per_second"] = counters["tests"] / ev.seconds
         out["methods"][name] = row
+    steal = steal_between(case_clock, cpu_clock())
+    if steal is not None:
+        out["steal"] = steal
     return out
 
 

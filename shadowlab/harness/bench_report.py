@@ -23,6 +23,7 @@ from pathlib import Path
 
 from ..core import io
 from ..core.io import KEEP_MARKER  # noqa: F401  (re-exported: the marker of this document)
+from ..core.machine import STEAL_SHARE
 from .bench_cases import case_target, default_cases, target_verdict
 
 
@@ -95,10 +96,31 @@ def _machine(results: dict) -> list[str]:
         if key in m:
             parts.append(f"load average {label} " + " / ".join(f"{x:.2f}" for x in m[key])
                          + " (1, 5, 15 min)")
+    if m.get("steal"):
+        parts.append(f"CPU time taken by the hypervisor (steal) {_steal(m['steal'])}")
     lines = ["Machine: " + "; ".join(parts) + "." if parts else "Machine:"]
     if m.get("note"):
         lines.append(f"Note: {m['note']}.")
     return lines
+
+
+def _steal(steal: dict) -> str:
+    """A steal record (:func:`shadowlab.core.machine.steal_between`) as "s (share)"."""
+    return f"{steal['seconds']:.2f} s ({100 * steal['share']:.1f} % of the cores' time)"
+
+
+def _steal_lines(case: dict) -> list[str]:
+    """A remark naming the case's spans (its whole run, each method's calls) in which the
+    hypervisor took more than ``STEAL_SHARE`` of the cores' time, if any."""
+    spans = [("the whole case", case.get("steal"))]
+    spans += [(f"`{n}`", m.get("steal")) for n, m in case["methods"].items()]
+    high = [f"{label} {_steal(st)}" for label, st in spans
+            if st and st["share"] > STEAL_SHARE]
+    if not high:
+        return []
+    return [f"Steal above {100 * STEAL_SHARE:g} % of the cores' time (another guest of the "
+            f"host ran; those times are slower than on an idle host): " + "; ".join(high)
+            + ".", ""]
 
 
 def _provenance(results: dict) -> str:
@@ -204,7 +226,7 @@ def _case(case: dict, default_repeats) -> list[str]:
         lines.append("")
     lines += soft
     lines.append("")
-    return lines
+    return lines + _steal_lines(case)
 
 
 def _cold(results: dict) -> list[str]:
@@ -256,7 +278,9 @@ def _targets(named_results) -> list[str]:
              "last of the files below that holds it. The verdict is on x Embree (the case's "
              "Embree passes); paired x (an Embree pass before each of the method's warm "
              "calls, in files since 2026-12-07) shows how much a drift of the machine's "
-             "speed moved it. A missed row names the method's two largest stages.", ""]
+             "speed moved it. A missed row names the method's two largest stages; a "
+             "verdict marked with steal was measured while the hypervisor took more than "
+             f"{100 * STEAL_SHARE:g} % of the cores' time (files since 2026-12-07).", ""]
     rows, met, row_files = [], 0, []
     for name, (label, case, target) in latest.items():
         for method, m in case["methods"].items():
@@ -268,9 +292,12 @@ def _targets(named_results) -> list[str]:
             stages = sorted(((v, k) for k, v in m.get("stages", {}).items() if k != "total"),
                             reverse=True)[:2]
             where = ", ".join(f"{k} {_ms(v)}" for v, k in stages) if verdict == "missed" else ""
+            steal = m.get("steal")
+            shared = (f" (steal {100 * steal['share']:.1f} %)"
+                      if steal and steal["share"] > STEAL_SHARE else "")
             rows.append(f"| `{name}` | {case['triangles']:,} | {target:g}x | `{method}` "
                         f"| {m['ratio_to_reference']:.2f} "
-                        f"| {_num(m.get('paired_ratio'), '.2f')} | **{verdict}** "
+                        f"| {_num(m.get('paired_ratio'), '.2f')} | **{verdict}**{shared} "
                         f"| {_ms(m['median_seconds'])} | {where} | `{label}` |")
     if rows:
         lines += ["| case | triangles | target | method | x Embree | paired x | verdict "

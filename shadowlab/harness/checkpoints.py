@@ -20,8 +20,10 @@ config, the experiment module's source, the shadowlab version and a hash of the 
 package's source files (:func:`code_hash`: every ``.py`` and ``.toml`` under
 ``shadowlab/``, read directly, so uncommitted edits count and rewritten figures do not),
 and the toolchain (Python, NumPy, JAX, jaxlib, the backend, x64). Not in the key: the
-machine. Each point records the host and the load average it was measured at, and the
-JSON lists them for resumed points. Folders of the same experiment and size under
+machine. Each point records the host, the load average it was measured at and the CPU
+time the hypervisor took while it was computed (``steal``, see
+:func:`shadowlab.core.machine.steal_between`), and the JSON lists them for resumed
+points. Folders of the same experiment and size under
 another key are removed (with a message) when a run starts; ``figures --fresh``
 discards a matching one too. Two runs of the same experiment and size at once share
 one folder, and a resumed point is whichever finished first.
@@ -49,7 +51,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..core import io
-from ..core.machine import load_average
+from ..core.machine import cpu_clock, load_average, steal_between
 
 #: the folder, under a figures output folder, that holds unfinished runs' points
 FOLDER = ".checkpoints"
@@ -162,12 +164,13 @@ class Checkpoint:
         record = self._stored(path, label)
         if record is not None:
             self.resumed.append({k: record.get(k) for k in
-                                 ("label", "written", "host", "load_average")})
+                                 ("label", "written", "host", "load_average", "steal")})
             return record["values"]
+        clock = cpu_clock()
         values = compute()
         record = {"label": label, "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                   "host": socket.gethostname(), "load_average": load_average(),
-                  "values": values}
+                  "steal": steal_between(clock, cpu_clock()), "values": values}
         text = _dumps(record)
         with io.atomic_path(path) as tmp:
             tmp.write_text(text)
