@@ -1,12 +1,12 @@
 """The machine a measurement ran on: its CPU (model, count and widest vector
-instructions), its load and the CPU time a hypervisor took from it, recorded with every timed result (``shadowlab bench``,
-``bench --cold``, ``shadowlab figures`` and each checkpointed sweep point), so that a
-time can be judged against the load it was taken under and compared only with times
-taken on the same kind of CPU. XLA compiles for the host's vector width, so the same
-code runs at different speeds on CPUs with and without AVX-512. On a virtual machine the
-load average does not see other guests of the same host; the kernel's *steal* time (CPU
-time the hypervisor gave to someone else while this guest wanted it) does, where the
-hypervisor reports it."""
+instructions), its load and the CPU time a hypervisor took from it, recorded with every
+timed result (``shadowlab bench``, ``bench --cold``, ``shadowlab figures`` and each
+checkpointed sweep point), so that a time can be judged against the load it was taken
+under and compared only with times taken on the same kind of CPU. XLA compiles for the
+host's vector width, so the same code runs at different speeds on CPUs with and without
+AVX-512. On a virtual machine the load average does not see other guests of the same
+host; the kernel's *steal* time (CPU time the hypervisor gave to someone else while this
+guest wanted it) does, where the hypervisor reports it."""
 
 from __future__ import annotations
 
@@ -155,8 +155,9 @@ def machine_record(before: dict, after: dict, note: str | None = None) -> dict:
         notes.append(f"not idle at the start: 1-minute load average {start:.2f} on "
                      f"{before['cpus']} cores (other jobs, or the tail of one that just "
                      f"ended), so times may be slower than on an idle machine")
-    if steal_sentence(steal):
-        notes.append(steal_sentence(steal))
+    shared = steal_sentence(steal)
+    if shared:
+        notes.append(shared)
     if notes:
         rec["note"] = "; ".join(notes)
     return rec

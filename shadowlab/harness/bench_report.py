@@ -119,7 +119,7 @@ def _steal_lines(case: dict) -> list[str]:
     if not high:
         return []
     return [f"Steal above {100 * STEAL_SHARE:g} % of the cores' time (another guest of the "
-            f"host ran; those times are slower than on an idle host): " + "; ".join(high)
+            f"host ran, so those times may be slower than on an idle host): " + "; ".join(high)
             + ".", ""]
 
 
