@@ -34,14 +34,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import shadowlab as sl
-from random_exactness_probe import failing_runs, finish, print_failures  # this folder
+from random_exactness_probe import (failing_runs, finish, probe_methods,  # this folder
+                                    report)
 from shadowlab.geometry.triangle_setup import shadow_volume_planes
-from shadowlab.methods import registry
 from shadowlab.reference import truth64
 from shadowlab.reference.boundary import unexplained_mismatches
 from shadowlab.scene.view import hard_light
 
-SLOW = ("zpass", "zfail")
 OFFSETS = (0.0, 1e5)
 
 
@@ -126,19 +125,15 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", nargs="+", default=None)
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    methods = a.methods or [n for n in registry.names()
-                            if registry.get(n).exact and n not in SLOW]
+    methods = probe_methods(a.methods)
     rows = []
     for seed in range(*a.seeds):
         for kind in ("point", "directional"):
             for offset in OFFSETS:
                 row = run_job(seed, kind, offset, a.res, a.triangles, methods)
                 rows.append(row)
-                flag = "" if not row["failures"] and not row["reference"] else "  <-- FAIL"
-                print(f"seed {seed} {kind:11s} offset {offset:g}: valid {row['valid']}, "
-                      f"shadowed {row['shadowed']}, reference {row['reference']}, failing "
-                      f"runs {len(row['failures'])}{flag}", flush=True)
-                print_failures(row)
+                report(row, f"seed {seed} {kind:11s} offset {offset:g}: valid "
+                            f"{row['valid']}, shadowed {row['shadowed']}")
     kept = np.array([r["ill_conditioned_kept_f32"] for r in rows
                      if r["offset"] == OFFSETS[0]]).sum(0)
     print(f"aimed triangles with delta in [1e-6, 1e-4) kept by the float32 setup: "

@@ -140,22 +140,28 @@ def main(argv=None) -> int:
     ap.add_argument("--parts", type=int, default=1)
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    methods = a.methods or [n for n in registry.names()
-                            if registry.get(n).exact and n not in SLOW]
+    methods = probe_methods(a.methods)
     rows = []
     for job in jobs(a.seed, a.offsets, a.scenes)[a.part::a.parts]:
         row = run_job(job, a.res, methods)
         rows.append(row)
-        flag = "" if not row["failures"] and not row["reference"] else "  <-- FAIL"
-        print(f"{row['scene']:12s} {row['light']:13s} offset {row['offset']:g}: valid "
-              f"{row['valid']}, reference {row['reference']}, failing runs "
-              f"{len(row['failures'])}{flag}", flush=True)
-        print_failures(row)
+        report(row, f"{row['scene']:12s} {row['light']:13s} offset {row['offset']:g}: "
+                    f"valid {row['valid']}")
     return finish(rows, a.out)
 
 
-def print_failures(row: dict) -> None:
-    """One line per failing run of a job's row."""
+def probe_methods(requested: list[str] | None) -> list[str]:
+    """The methods a probe runs: those requested, else every exact one but ``SLOW``."""
+    return requested or [n for n in registry.names()
+                         if registry.get(n).exact and n not in SLOW]
+
+
+def report(row: dict, head: str) -> None:
+    """Print a job's line (``head``, then its reference mismatches and failing runs,
+    flagged when either is nonzero) and one line per failing run."""
+    flag = "" if not row["failures"] and not row["reference"] else "  <-- FAIL"
+    print(f"{head}, reference {row['reference']}, failing runs {len(row['failures'])}"
+          f"{flag}", flush=True)
     for f in row["failures"]:
         print("    ", f, flush=True)
 

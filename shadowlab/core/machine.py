@@ -115,10 +115,16 @@ def steal_between(before: dict, after: dict) -> dict | None:
             "share": round(stolen / (wall * (before.get("cpus") or 1)), 4)}
 
 
+def shared_host(steal: dict | None) -> bool:
+    """Whether a steal record (:func:`steal_between`; None: not recorded) shows the
+    hypervisor taking more than ``STEAL_SHARE`` of the cores' time."""
+    return bool(steal) and steal["share"] > STEAL_SHARE
+
+
 def steal_sentence(steal: dict | None) -> str | None:
     """A remark when the hypervisor took more than ``STEAL_SHARE`` of the CPUs' time
-    (:func:`steal_between`), else None."""
-    if not steal or steal["share"] <= STEAL_SHARE:
+    (:func:`shared_host`), else None."""
+    if not shared_host(steal):
         return None
     return (f"the hypervisor took {steal['seconds']:.2f} s of CPU time during the run "
             f"(steal: {100 * steal['share']:.1f} % of the cores' time): another guest "

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ..core import io
 from ..core.io import KEEP_MARKER  # noqa: F401  (re-exported: the marker of this document)
-from ..core.machine import STEAL_SHARE
+from ..core.machine import STEAL_SHARE, shared_host
 from .bench_cases import case_target, default_cases, target_verdict
 
 
@@ -114,8 +114,7 @@ def _steal_lines(case: dict) -> list[str]:
     hypervisor took more than ``STEAL_SHARE`` of the cores' time, if any."""
     spans = [("the whole case", case.get("steal"))]
     spans += [(f"`{n}`", m.get("steal")) for n, m in case["methods"].items()]
-    high = [f"{label} {_steal(st)}" for label, st in spans
-            if st and st["share"] > STEAL_SHARE]
+    high = [f"{label} {_steal(st)}" for label, st in spans if shared_host(st)]
     if not high:
         return []
     return [f"Steal above {100 * STEAL_SHARE:g} % of the cores' time (another guest of the "
@@ -292,9 +291,8 @@ def _targets(named_results) -> list[str]:
             stages = sorted(((v, k) for k, v in m.get("stages", {}).items() if k != "total"),
                             reverse=True)[:2]
             where = ", ".join(f"{k} {_ms(v)}" for v, k in stages) if verdict == "missed" else ""
-            steal = m.get("steal")
-            shared = (f" (steal {100 * steal['share']:.1f} %)"
-                      if steal and steal["share"] > STEAL_SHARE else "")
+            shared = (f" (steal {100 * m['steal']['share']:.1f} %)"
+                      if shared_host(m.get("steal")) else "")
             rows.append(f"| `{name}` | {case['triangles']:,} | {target:g}x | `{method}` "
                         f"| {m['ratio_to_reference']:.2f} "
                         f"| {_num(m.get('paired_ratio'), '.2f')} | **{verdict}**{shared} "

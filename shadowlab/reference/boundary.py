@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .raycast import DEFAULT_SHADOW_EPS, GBuffer, shadow_epsilon
+from .raycast import DEFAULT_SHADOW_EPS, GBuffer, facing_test, shadow_epsilon
 from ..scene.mesh import Scene
 from ..scene.view import Light, hard_light
 
@@ -47,7 +47,7 @@ def facing_margin(gbuf: GBuffer, light: Light, pixels: np.ndarray) -> np.ndarray
     lh = hard_light(light).homogeneous
     idx = tuple(np.asarray(pixels).reshape(-1, 2).T)
     p, n = gbuf.position[idx], gbuf.normal[idx]
-    value = n @ lh[:3] - lh[3] * np.einsum("ij,ij->i", n, p)
+    value = facing_test(n, p, lh)
     scale = np.linalg.norm(n, axis=1) * (np.linalg.norm(lh[:3]) + abs(lh[3])
                                          * np.linalg.norm(p, axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -276,6 +276,13 @@ def shadow_epsilon(scene: Scene, shadow_eps: float = DEFAULT_SHADOW_EPS) -> floa
     return float(shadow_eps) * max(scene.diagonal, 1e-30)
 
 
+def facing_test(n: np.ndarray, p: np.ndarray, light_h: np.ndarray) -> np.ndarray:
+    """float64 [S]: the facing test ``n . (L.xyz - L.w p)`` of samples with normals n and
+    positions p [S, 3] and a homogeneous light ``light_h`` [4], evaluated as
+    ``n . L.xyz - L.w (n . p)`` (no normalization: its sign is the test)."""
+    return n @ light_h[:3] - light_h[3] * np.einsum("ij,ij->i", n, p)
+
+
 def facing_samples(gbuf: GBuffer, light: Light) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The valid samples whose camera-facing normal also faces the light.
 
@@ -289,8 +296,7 @@ def facing_samples(gbuf: GBuffer, light: Light) -> tuple[np.ndarray, np.ndarray,
     else:
         idx = np.flatnonzero(gbuf.valid)
         p, n = np.take(p, idx, axis=0), np.take(n, idx, axis=0)
-    # n . (L.xyz - L.w p) > 0: the sign test needs no normalization.
-    keep = np.flatnonzero((n @ lh[:3] - lh[3] * np.einsum("ij,ij->i", n, p)) > 0)
+    keep = np.flatnonzero(facing_test(n, p, lh) > 0)
     # np.take: a row gather about 2.5x faster than fancy indexing of [S, 3]
     return (keep if idx is None else idx[keep]), np.take(p, keep, axis=0), \
         np.take(n, keep, axis=0)
