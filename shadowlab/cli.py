@@ -22,6 +22,11 @@ def _common_config_args(p: argparse.ArgumentParser) -> None:
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="shadowlab", description=__doc__)
+    ap.add_argument("--heap", choices=("retain", "system"), default=None,
+                    help="keep memory freed between frames in the process ('retain', the "
+                         "default: no page faults for the next frame's arrays, a resident "
+                         "size near the peak) or return it to the system ('system', "
+                         "glibc's defaults); default: $SHADOWLAB_HEAP, else retain")
     sub = ap.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run methods on a scene and compare with the reference")
@@ -266,11 +271,17 @@ def main(argv: list[str] | None = None) -> int:
     from .config import ConfigError
     from .core.capacity import CapacityError
     from .harness.figures import ExperimentError
+    from .core.heap import set_heap_policy
     from .core.jaxcache import enable_compilation_cache
     from .methods import MethodError
     from .scene import SceneError
 
     args = _parser().parse_args(argv)
+    try:
+        set_heap_policy(args.heap)
+    except ValueError as exc:          # $SHADOWLAB_HEAP names no policy
+        print(f"shadowlab: error: {exc}", file=sys.stderr)
+        return 2
     enable_compilation_cache()
     handlers = {"run": _cmd_run, "sweep": _cmd_sweep, "methods": _cmd_methods,
                 "scenes": _cmd_scenes,

@@ -1,7 +1,8 @@
 """Test-session set-up: one pytest session runs the whole suite (CI: on every core with
 pytest-xdist, ``-n auto --dist loadfile``, so each worker process runs whole test files
 and its module-level caches and compiled shapes serve the whole file; every worker runs
-this set-up for itself).
+this set-up for itself). The heap policy of the command line is ``system`` in the tests
+(``SHADOWLAB_HEAP``, ``shadowlab.core.heap``).
 
 Compilation caches are hermetic: every session gets a fresh temporary folder for JAX's
 persistent cache (shared by the session's xdist workers) and Warp's kernel caches (one per
@@ -40,6 +41,10 @@ else:               # any process but an xdist worker starts a session of its ow
 os.environ["SHADOWLAB_JAX_CACHE"] = str(CACHE_ROOT / "jax")
 os.environ["SHADOWLAB_WARP_CACHE"] = str(
     CACHE_ROOT / f"warp-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}")
+# The command line keeps freed memory in the process (``core.heap``); the tests call it
+# in long-lived worker processes, which return memory to the system as before. The
+# policy's own tests run in child processes and set it themselves.
+os.environ["SHADOWLAB_HEAP"] = "system"
 
 from shadowlab.core import executables  # noqa: E402
 from shadowlab.core.jaxcache import enable_compilation_cache  # noqa: E402

@@ -27,6 +27,8 @@ def test_cold_start_measures_a_fresh_process_with_an_empty_cache(tmp_path, capsy
                                      + row["first_call_seconds"])
     assert "needs a sphere or sun light" in data["methods"]["soft_tiled"]["skipped"]
     assert data["resolution"] == [16, 16] and data["machine"]["cpus"] >= 1
+    # the child runs under the parent's heap policy (the tests': system)
+    assert row["heap"] == data["machine"]["heap"] == "system"
     printed = capsys.readouterr().out
     assert "brute_force" in printed and f"wrote {out}" in printed
 

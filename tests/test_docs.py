@@ -204,6 +204,17 @@ def test_bench_report_marks_the_times_taken_while_the_hypervisor_took_cpu_time()
         assert "Steal above" not in text and "(steal " not in text
 
 
+def test_bench_report_names_the_heap_policy_of_the_run():
+    from shadowlab.harness import bench_report
+
+    data = {"machine": {"date_utc": "2026-01-01", "cpus": 2, "heap": "retain"}, "cases": []}
+    line = next(x for x in bench_report.render([("a.json", data)]).splitlines()
+                if x.startswith("Machine:"))
+    assert line.endswith("2 CPU cores; heap policy retain.")
+    data["machine"].pop("heap")
+    assert "heap policy" not in bench_report.render([("a.json", data)])
+
+
 def test_public_files_do_not_point_into_the_workspace():
     """No project file cites the private workspace, its design notes or paper files."""
     import re

@@ -15,6 +15,7 @@ import os
 import platform
 import time
 
+from .heap import heap_policy
 
 #: 1-minute load average per core above which a run is marked as not idle
 BUSY_LOAD_PER_CORE = 0.25
@@ -133,15 +134,16 @@ def steal_sentence(steal: dict | None) -> str | None:
 
 def machine_state() -> dict:
     """Date (UTC), CPU count and description (:func:`cpu_description`), load averages
-    (1, 5, 15 min; None where the platform has none) and the clocks of
-    :func:`cpu_clock` of this machine now."""
+    (1, 5, 15 min; None where the platform has none), the clocks of :func:`cpu_clock`
+    of this machine now and the process's heap policy (:mod:`shadowlab.core.heap`)."""
     return {"date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d"),
-            "cpu": cpu_description(), "load_average": load_average(), **cpu_clock()}
+            "cpu": cpu_description(), "load_average": load_average(), **cpu_clock(),
+            "heap": heap_policy()}
 
 
 def machine_record(before: dict, after: dict, note: str | None = None) -> dict:
-    """The ``machine`` entry of a bench, cold-start or figures JSON: the CPU (where
-    ``before`` describes it), the load before and after the run, the CPU time the
+    """The ``machine`` entry of a bench, cold-start or figures JSON: the CPU and the heap
+    policy (where ``before`` describes them), the load before and after the run, the CPU time the
     hypervisor took during it (``steal``, :func:`steal_between`, where both states
     carry it), and a note that says when the machine was busy when the run started
     (1-minute load above ``BUSY_LOAD_PER_CORE`` per core) or shared its host (steal above
@@ -150,6 +152,8 @@ def machine_record(before: dict, after: dict, note: str | None = None) -> dict:
     rec = {"date_utc": before["date_utc"], "cpus": before["cpus"]}
     if before.get("cpu"):
         rec["cpu"] = before["cpu"]
+    if before.get("heap"):
+        rec["heap"] = before["heap"]
     rec |= {"load_average_before": before["load_average"],
             "load_average_after": after["load_average"]}
     steal = steal_between(before, after)

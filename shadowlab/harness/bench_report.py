@@ -98,6 +98,8 @@ def _machine(results: dict) -> list[str]:
                          + " (1, 5, 15 min)")
     if m.get("steal"):
         parts.append(f"CPU time taken by the hypervisor (steal) {_steal(m['steal'])}")
+    if m.get("heap"):
+        parts.append(f"heap policy {m['heap']}")
     lines = ["Machine: " + "; ".join(parts) + "." if parts else "Machine:"]
     if m.get("note"):
         lines.append(f"Note: {m['note']}.")

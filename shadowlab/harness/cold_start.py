@@ -47,10 +47,12 @@ def child(t0: float, out_path: str, config_path: str, overrides_json: str, metho
     """The child process: measure one method's cold start and write it as JSON to
     ``out_path`` (a file, so whatever a method prints cannot mix with the result)."""
     from ..config import load_config
+    from ..core.heap import set_heap_policy
     from ..core.jaxcache import enable_compilation_cache
     from ..methods import compute_shadows
     from ..reference.raycast import render_gbuffer
 
+    heap = set_heap_policy()                     # the parent's, from $SHADOWLAB_HEAP
     cache = enable_compilation_cache()           # the parent's empty folder
     entries = sum(1 for _ in cache.iterdir())
     t1 = time.perf_counter()
@@ -69,7 +71,7 @@ def child(t0: float, out_path: str, config_path: str, overrides_json: str, metho
         compute_shadows(scene, gbuf, view.light, method=method, **options)
         warm.append(time.perf_counter() - s)
     Path(out_path).write_text(json.dumps({
-        "cache_entries_at_start": entries, "scene": scene.name, "triangles": scene.num_triangles,
+        "cache_entries_at_start": entries, "heap": heap, "scene": scene.name, "triangles": scene.num_triangles,
         "resolution": list(view.camera.resolution),
         "import_seconds": t1 - t0, "setup_seconds": t2 - t1, "first_call_seconds": t3 - t2,
         "compile_seconds": float(sum(v for k, v in result.timings.items()
@@ -127,12 +129,13 @@ def cold_start(config_path: str | None = None, overrides=(), repeats: int = 3,
 
 def _measure(config_path, overrides, name, repeats, timeout) -> dict:
     import shadowlab
+    from ..core.heap import heap_policy
 
     # the child imports this very shadowlab, wherever the command runs from
     package_parent = str(Path(shadowlab.__file__).resolve().parent.parent)
     with tempfile.TemporaryDirectory(prefix="shadowlab-cold-") as tmp:
         cache, out = Path(tmp) / "jax", Path(tmp) / "result.json"
-        env = dict(os.environ, SHADOWLAB_JAX_CACHE=str(cache),
+        env = dict(os.environ, SHADOWLAB_JAX_CACHE=str(cache), SHADOWLAB_HEAP=heap_policy(),
                    PYTHONPATH=os.pathsep.join(
                        [package_parent] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
         t0 = time.perf_counter()
