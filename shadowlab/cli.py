@@ -23,10 +23,10 @@ def _common_config_args(p: argparse.ArgumentParser) -> None:
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="shadowlab", description=__doc__)
     ap.add_argument("--heap", choices=("retain", "system"), default=None,
-                    help="keep memory freed between frames in the process ('retain', the "
-                         "default: no page faults for the next frame's arrays, a resident "
-                         "size near the peak) or return it to the system ('system', "
-                         "glibc's defaults); default: $SHADOWLAB_HEAP, else retain")
+                    help="'retain': keep memory freed between frames in the process (no "
+                         "page faults for the next frame's arrays; a resident size near "
+                         "the peak); 'system': glibc's defaults; default: $SHADOWLAB_HEAP, "
+                         "else system")
     sub = ap.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run methods on a scene and compare with the reference")

@@ -41,8 +41,8 @@ else:               # any process but an xdist worker starts a session of its ow
 os.environ["SHADOWLAB_JAX_CACHE"] = str(CACHE_ROOT / "jax")
 os.environ["SHADOWLAB_WARP_CACHE"] = str(
     CACHE_ROOT / f"warp-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}")
-# The command line keeps freed memory in the process (``core.heap``); the tests call it
-# in long-lived worker processes, which return memory to the system as before. The
+# The command line's heap policy (``core.heap``) is glibc's own in the tests, whatever the
+# user's environment says: the tests call it in long-lived worker processes. The
 # policy's own tests run in child processes and set it themselves.
 os.environ["SHADOWLAB_HEAP"] = "system"
 

@@ -64,8 +64,8 @@ def test_a_bad_policy_is_refused_with_its_source(monkeypatch, capsys):
     assert "SHADOWLAB_HEAP must be one of retain, system; got 'keep'" in \
         capsys.readouterr().err
     monkeypatch.setenv(heap.HEAP_ENV, "")
-    assert heap.resolve_policy() == "retain"        # unset or empty: the default
-    assert heap.resolve_policy("system") == "system"
+    assert heap.resolve_policy() == "system"        # unset or empty: the default
+    assert heap.resolve_policy("retain") == "retain"
 
 
 def test_the_policy_in_force_is_recorded_with_the_machine():
@@ -76,7 +76,7 @@ def test_the_policy_in_force_is_recorded_with_the_machine():
 
 
 @pytest.mark.skipif(heap._libc() is None, reason="the heap policy needs glibc")
-def test_the_command_line_applies_retain_unless_told_otherwise():
+def test_the_command_line_applies_the_policy_it_is_given():
     code = ("import sys; from shadowlab.cli import main; from shadowlab.core import heap; "
             "main(sys.argv[1:]); print(heap.heap_policy())")
     env = {k: v for k, v in os.environ.items() if k != heap.HEAP_ENV}
@@ -85,7 +85,7 @@ def test_the_command_line_applies_retain_unless_told_otherwise():
         return subprocess.run([sys.executable, "-c", code, *args], env=dict(env, **extra),
                               check=True, capture_output=True, text=True
                               ).stdout.split()[-1]
-    assert policy("methods") == "retain"
-    assert policy("--heap", "system", "methods") == "system"
-    assert policy("methods", SHADOWLAB_HEAP="system") == "system"
-    assert policy("--heap", "retain", "methods", SHADOWLAB_HEAP="system") == "retain"
+    assert policy("methods") == "system"
+    assert policy("--heap", "retain", "methods") == "retain"
+    assert policy("methods", SHADOWLAB_HEAP="retain") == "retain"
+    assert policy("--heap", "system", "methods", SHADOWLAB_HEAP="retain") == "system"

@@ -7,9 +7,10 @@ raised dynamically to at most 32 MiB) with fresh pages and unmaps them when it i
 freed, and trims the top of the heap when more than twice that threshold is free. So
 every frame touches new pages, and the kernel pays a page fault for each: zeroing a
 4 KiB page, or a 2 MiB huge page, which NumPy requests for large arrays
-(``madvise``). Measured on a 2-core virtual machine (docs/benchmarks.md, "Heap
-policy"): ``silhouette`` on fuzzy 100k at 1024x1024 took 1.3-1.6 s of system time per
-call, 34-52 k faults, of a 6.4-6.8 s call.
+(``madvise``). Measured on a 2-core virtual machine (docs/benchmarks.md, "Heap policy
+(session 56)"): ``silhouette`` on fuzzy 100k at 1024x1024 took 1.1-2.1 s of system time
+per call (35-41 k faults) of a 5.3-7.8 s call under ``"system"``, and 0.6-0.8 s (3-14 k
+faults) of a 4.3-4.5 s call under ``"retain"``.
 
 Policies (``HEAP_POLICIES``):
 
@@ -17,17 +18,20 @@ Policies (``HEAP_POLICIES``):
   from the heap instead of their own mappings (``M_MMAP_MAX = 0``), and the heap is
   trimmed only when more than ``TRIM_THRESHOLD`` bytes at its top are free. The
   resident size then stays near the largest frame's peak instead of falling back
-  between frames, and can grow somewhat beyond it by fragmentation (measured: 2.5 ->
-  2.9-3.2 GB maximum resident size for a process that ran five exact methods on fuzzy
-  100k).
+  between frames, and can grow somewhat beyond it by fragmentation (a throw-away script
+  that ran five exact methods on fuzzy 100k: 2.5-2.7 GB maximum resident size under
+  ``"system"``, 2.9-3.2 GB under ``"retain"``).
 - ``"system"``: glibc's defaults, untouched.
 
 Only glibc has these knobs (``mallopt``); elsewhere (musl, macOS, Windows) every policy
-leaves the allocator as it is and :func:`heap_policy` says ``"system"``. The command
-line applies ``"retain"`` unless told otherwise (``shadowlab --heap system ...`` or the
-environment variable ``SHADOWLAB_HEAP``); the library itself changes nothing until
-:func:`set_heap_policy` is called, since the policy is process-wide. The policy in
-force is recorded with every timed result (``core.machine.machine_state``).
+leaves the allocator as it is and :func:`heap_policy` says ``"system"``. The default is
+``"system"``: ``"retain"`` removes most page faults, which made the host-heavy methods
+faster (``silhouette`` on fuzzy 100k 4.3-4.5 against 5.3-7.8 s, ``izb`` 0.72-0.77
+against 0.87-0.89 s), but ``d_hybrid``'s query on fuzzy 100k was slower under it in
+every comparison (4.7-5.0 against 3.8-4.1 s), for reasons not found. The command line
+takes ``--heap retain`` (or ``SHADOWLAB_HEAP=retain``); the library changes nothing
+until :func:`set_heap_policy` is called, since the policy is process-wide. The policy
+in force is recorded with every timed result (``core.machine.machine_state``).
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ HEAP_POLICIES = ("retain", "system")
 #: the environment variable the command line (and ``bench --cold``'s child processes)
 #: read the policy from when none is given
 HEAP_ENV = "SHADOWLAB_HEAP"
-DEFAULT_POLICY = "retain"
+DEFAULT_POLICY = "system"
 #: with ``"retain"``, free memory at the heap's top beyond this many bytes is returned
 #: (mallopt takes a C int: the largest one, about 2 GiB)
 TRIM_THRESHOLD = 2 ** 31 - 1
@@ -64,7 +68,7 @@ def _libc():
 
 
 def resolve_policy(policy: str | None = None) -> str:
-    """The policy to apply: ``policy``, else ``$SHADOWLAB_HEAP``, else ``"retain"``.
+    """The policy to apply: ``policy``, else ``$SHADOWLAB_HEAP``, else ``"system"``.
 
     Raises:
         ValueError: a policy that is not one of ``HEAP_POLICIES``, naming its source.
