@@ -23,7 +23,7 @@ def _common_config_args(p: argparse.ArgumentParser) -> None:
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="shadowlab", description=__doc__)
     ap.add_argument("--heap", choices=("retain", "system"), default=None,
-                    help="'retain': keep memory freed between frames in the process (no "
+                    help="'retain': keep memory freed between frames in the process (fewer "
                          "page faults for the next frame's arrays; a resident size near "
                          "the peak); 'system': glibc's defaults; default: $SHADOWLAB_HEAP, "
                          "else system")

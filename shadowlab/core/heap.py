@@ -4,12 +4,13 @@ operating system.
 A frame allocates and frees host arrays of tens of MB (NumPy host stages, XLA's CPU
 buffers). glibc's ``malloc`` serves each block above its mmap threshold (128 KiB,
 raised dynamically to at most 32 MiB) with fresh pages and unmaps them when it is
-freed, and trims the top of the heap when more than twice that threshold is free. So
+freed, and trims the top of the heap when more than its trim threshold is free (128
+KiB, twice the mmap threshold once that has risen). So
 every frame touches new pages, and the kernel pays a page fault for each: zeroing a
 4 KiB page, or a 2 MiB huge page, which NumPy requests for large arrays
 (``madvise``). Measured on a 2-core virtual machine (docs/benchmarks.md, "Heap policy
 (session 56)"): ``silhouette`` on fuzzy 100k at 1024x1024 took 1.1-2.1 s of system time
-per call (35-41 k faults) of a 5.3-7.8 s call under ``"system"``, and 0.6-0.8 s (3-14 k
+per call (35-40 k faults) of a 5.3-7.8 s call under ``"system"``, and 0.6-0.8 s (3-14 k
 faults) of a 4.3-4.5 s call under ``"retain"``.
 
 Policies (``HEAP_POLICIES``):
@@ -49,9 +50,11 @@ DEFAULT_POLICY = "system"
 #: (mallopt takes a C int: the largest one, about 2 GiB)
 TRIM_THRESHOLD = 2 ** 31 - 1
 
-# mallopt parameters (malloc.h)
+# mallopt parameters (malloc.h) and glibc's defaults for them
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_MAX = -4
+_DEFAULT_MMAP_MAX = 65536
+_DEFAULT_TRIM_THRESHOLD = 128 * 1024
 
 _applied = "system"
 
@@ -103,12 +106,15 @@ def set_heap_policy(policy: str | None = None) -> str:
     if libc is None:
         return _applied
     if policy == "retain":
-        ok = libc.mallopt(_M_MMAP_MAX, 0) and libc.mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD)
-        _applied = "retain" if ok else _applied
+        if libc.mallopt(_M_MMAP_MAX, 0):
+            if libc.mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD):
+                _applied = "retain"
+            else:                       # all or nothing: mappings allowed again
+                libc.mallopt(_M_MMAP_MAX, _DEFAULT_MMAP_MAX)
     else:
-        libc.mallopt(_M_MMAP_MAX, 65536)
-        libc.mallopt(_M_TRIM_THRESHOLD, 128 * 1024)
-        libc.malloc_trim(0)
+        libc.mallopt(_M_MMAP_MAX, _DEFAULT_MMAP_MAX)
+        libc.mallopt(_M_TRIM_THRESHOLD, _DEFAULT_TRIM_THRESHOLD)
+        libc.malloc_trim(ctypes.c_size_t(0))
         _applied = "system"
     return _applied
 
