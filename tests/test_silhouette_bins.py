@@ -401,6 +401,34 @@ def test_facet_cuts_in_small_pieces_equal_the_full_passes(monkeypatch, stencil, 
         assert pieces.counters[key] == whole.counters[key], key
 
 
+@pytest.mark.parametrize("stencil", ["zpass", "zfail"])
+def test_row_spans_in_narrow_and_wide_integers_agree(monkeypatch, stencil, precision):
+    """The spans' int16 cells and int32 indices (grids under 2^15 cells a side) give the
+    unbinned passes' counts and the same side and cap tests as int64 ones (the type of
+    larger grids)."""
+    scene, gbuf, light, full = _unbinned_small_grid(stencil, precision)
+    kwargs = dict(method="silhouette", bins="screen", stencil=stencil, precision=precision)
+    types = []
+    real = bins._row_spans
+
+    def spy(*args):
+        out = real(*args)
+        types.append(tuple(x.dtype for x in out))
+        return out
+
+    monkeypatch.setattr(bins, "_row_spans", spy)
+    narrow = sl.compute_shadows(scene, gbuf, light, **kwargs)
+    assert types and set(types) == {tuple(map(np.dtype, ('int16',) * 3 + ('int32',)))}
+    monkeypatch.setattr(bins, "_cell_dtype", lambda grid: np.int64)
+    types.clear()
+    wide = sl.compute_shadows(scene, gbuf, light, **kwargs)
+    assert types and set(types) == {tuple(map(np.dtype, ('int64',) * 3 + ('int32',)))}
+    _assert_same_counts(full, narrow)
+    _assert_same_counts(full, wide)
+    for key in ("side_tests", "cap_tests"):
+        assert narrow.counters[key] == wide.counters[key], key
+
+
 def test_plane_depth_cut_keeps_every_side_a_sample_can_cross():
     """The per-cell plane depth cut equals a plain loop over each cell rectangle's four
     corners (a plane is kept iff it reaches a depth of at most the cell's limit in

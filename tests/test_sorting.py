@@ -7,7 +7,8 @@ from shadowlab.core.sorting import RADIX_MIN, stable_argsort
 
 
 CASES = [(dtype, top)
-         for dtype in (np.int32, np.int64, np.uint16, np.uint32, np.uint64)
+         for dtype in (np.int8, np.int16, np.int32, np.int64, np.uint8, np.uint16, np.uint32,
+                       np.uint64)
          for top in (1, 300, (1 << 16) - 1, (1 << 16) + 7, 1 << 31, (1 << 47) + 5)
          if top <= np.iinfo(dtype).max]
 

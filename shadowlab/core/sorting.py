@@ -17,11 +17,13 @@ RADIX_MIN = 1 << 12
 def stable_argsort(keys: np.ndarray) -> np.ndarray:
     """int64 [N]: the permutation ``np.argsort(keys, kind="stable")`` of the keys [N].
 
-    Non-negative integer keys (at least ``RADIX_MIN`` of them) are sorted by LSD radix
-    passes over 16-bit digits; any other input goes to ``np.argsort``.
+    Non-negative integer keys wider than 16 bits (at least ``RADIX_MIN`` of them) are
+    sorted by LSD radix passes over 16-bit digits; any other input goes to
+    ``np.argsort``.
     """
     keys = np.asarray(keys)
-    if keys.ndim != 1 or keys.dtype.kind not in "iu" or len(keys) < RADIX_MIN:
+    if keys.ndim != 1 or keys.dtype.kind not in "iu" or len(keys) < RADIX_MIN \
+            or keys.dtype.itemsize <= 2:        # NumPy radix-sorts 16-bit keys itself
         return np.argsort(keys, kind="stable")
     if keys.dtype.kind == "i" and keys.min() < 0:
         return np.argsort(keys, kind="stable")

@@ -963,7 +963,7 @@ def _cell_lists(grid: "SampleGrid", spans: list, unique: bool):
         by_row = order[stable_argsort(row[order])]
     else:
         by_row = stable_argsort(row)
-    small = np.int16 if max(gx, gy) < 2 ** 15 else np.int64
+    small = _cell_dtype(grid)
     row, lo, hi = (x[by_row].astype(small) for x in (row, lo, hi))
     rank = rank[by_row].astype(np.int32)
     pieces, counts = [], np.zeros((gx, gy), np.int64)
@@ -1015,37 +1015,53 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
     iff it meets each half-plane; the bounds are widened by a millionth of a cell).
 
     Returns the non-empty spans, in order of primitive then row: (row, lo, hi, the
-    index into ``prim``) int64 [M] each (cells lo..hi of cell row ``row``).
+    index into ``prim``) [M] each (cells lo..hi of cell row ``row``). Cell indices are
+    int16 (int64 on a grid of 2^15 or more cells along an axis) and the index int32
+    (int64 past 2^31 rows): a quarter and a half of the bytes of int64 rows, which the
+    cuts, the gathers and :func:`_cell_lists` pass over several times.
     """
-    x0, x1 = grid.index(box[prim, 0], 0), grid.index(box[prim, 1], 0)
-    y0, y1 = grid.index(box[prim, 2], 1), grid.index(box[prim, 3], 1)
-    ny = y1 - y0 + 1
-    row = np.repeat(y0, ny) + run_offsets(ny)
+    small = _cell_dtype(grid)
+    x0, x1 = (grid.index(box[prim, k], 0).astype(small) for k in (0, 1))
+    y0, y1 = (grid.index(box[prim, k], 1).astype(small) for k in (2, 3))
+    ny = (y1 - y0 + 1).astype(np.int64)
+    n_rows = int(ny.sum())
+    index = np.int32 if max(n_rows, len(prim)) < 2 ** 31 else np.int64
+    # each row's place in its primitive's run (``run_offsets`` in the narrow type)
+    row = (np.arange(n_rows, dtype=index)
+           - np.repeat((np.cumsum(ny) - ny).astype(index), ny)).astype(small)
+    row += np.repeat(y0, ny)
     lo, hi = np.repeat(x0, ny), np.repeat(x1, ny)
     ok = np.ones(len(row), bool)
     # only the rows of primitives with a facet line are cut (the others keep their box)
     cut = lines[3][prim].any(axis=1)
     rows = np.flatnonzero(np.repeat(cut, ny))
     if len(rows):
-        which, n_rows = prim[cut], ny[cut]
+        which, cut_rows = prim[cut], ny[cut]
         # in pieces of about ROW_PIECE rows (primitives whole), so that the per-row
         # arrays of a piece stay in cache: the same values, 1.6x faster on 4 M rows
-        ends = np.cumsum(n_rows)
+        ends = np.cumsum(cut_rows)
         splits = np.searchsorted(ends, np.arange(ROW_PIECE, ends[-1], ROW_PIECE), "right")
         for part in np.split(np.arange(len(which)), np.unique(splits)):
             if len(part):
-                r = rows[ends[part[0]] - n_rows[part[0]]:ends[part[-1]]]
+                r = rows[ends[part[0]] - cut_rows[part[0]]:ends[part[-1]]]
                 lo[r], hi[r], ok[r] = _cut_rows(grid, row[r], lo[r], hi[r],
-                                                [x[which[part]] for x in lines], n_rows[part])
+                                                [x[which[part]] for x in lines],
+                                                cut_rows[part])
     some = np.flatnonzero(ok & (hi >= lo))
-    k = np.repeat(np.arange(len(prim)), ny)
+    k = np.repeat(np.arange(len(prim), dtype=index), ny)
     return row[some], lo[some], hi[some], k[some]
 
 
+def _cell_dtype(grid: "SampleGrid"):
+    """The integer type of the grid's cell rows and columns: int16 where both fit."""
+    return np.int16 if max(grid.shape) < 2 ** 15 else np.int64
+
+
 def _cut_rows(grid: "SampleGrid", row, lo, hi, lines, ny):
-    """The column spans ``lo..hi`` (int64 [M], rows ``row`` [M] of K primitives, ``ny``
-    [K] rows each, in order) cut by each primitive's padded half-planes ``lines`` (a, b,
-    c, valid [K, F], pad [K]); returns (lo, hi, ok bool [M]) (:func:`_row_spans`)."""
+    """The column spans ``lo..hi`` (rows ``row`` [M] of K primitives, ``ny`` [K] rows
+    each, in order; cell indices of :func:`_cell_dtype`) cut by each primitive's padded
+    half-planes ``lines`` (a, b, c, valid [K, F], pad [K]); returns (lo, hi, ok bool [M])
+    (:func:`_row_spans`), lo and hi in the type they came in."""
     a, b, c, valid, pad = lines
     v0, v1 = (e[row] for e in grid.cell_edges(1))
     ok = np.ones(len(row), bool)
@@ -1065,7 +1081,9 @@ def _cut_rows(grid: "SampleGrid", row, lo, hi, lines, ny):
             bound = -reach / per_row(np.where(af != 0, af, 1.0))
         ok &= ~flat | (reach >= 0)
         with np.errstate(invalid="ignore"):
-            cell = grid.index(bound + np.where(up, -2e-6 * width, 2e-6 * width), 0)
+            # clamped to the grid's columns, so it fits the spans' type
+            cell = grid.index(bound + np.where(up, -2e-6 * width, 2e-6 * width),
+                              0).astype(lo.dtype)
         lo = np.where(up & (bound > -np.inf), np.maximum(lo, cell), lo)
         hi = np.where(down & (bound < np.inf), np.minimum(hi, cell), hi)
         ok &= ~(up & (bound == np.inf)) & ~(down & (bound == -np.inf))
