@@ -108,6 +108,15 @@ def test_run_offsets_count_within_each_run():
     assert run_offsets([]).tolist() == []
 
 
+def test_run_offsets_in_a_narrow_type_equal_the_wide_ones():
+    from shadowlab.core.capacity import run_offsets
+
+    counts = np.random.default_rng(3).integers(0, 9, 500)
+    narrow = run_offsets(counts, np.int32)
+    assert narrow.dtype == np.int32
+    np.testing.assert_array_equal(narrow, run_offsets(counts))
+
+
 @pytest.mark.parametrize("low_bits", [2, 24])
 def test_wide_counters_sum_past_int32_exactly(low_bits):
     """Increments whose int32 sum wraps several times: the two-word totals equal Python's

@@ -77,11 +77,14 @@ def wide_total(wide, low_bits: int | None = None) -> np.ndarray:
     return (w[1] << b) + w[0]
 
 
-def run_offsets(counts: np.ndarray) -> np.ndarray:
-    """int64 [sum(counts)]: 0, 1, ..., counts[i] - 1 for each run i in turn, i.e. the
-    place within its run of every element of ``np.repeat(x, counts)``."""
+def run_offsets(counts: np.ndarray, dtype=np.int64) -> np.ndarray:
+    """[sum(counts)] of ``dtype`` (int64 by default; a narrower one, which the caller
+    makes sure holds sum(counts), halves the temporaries): 0, 1, ..., counts[i] - 1 for
+    each run i in turn, i.e. the place within its run of every element of
+    ``np.repeat(x, counts)``."""
     counts = np.asarray(counts, np.int64)
-    return np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    starts = (np.cumsum(counts) - counts).astype(dtype)
+    return np.arange(counts.sum(), dtype=dtype) - np.repeat(starts, counts)
 
 
 def bucket(n: int, minimum: int = 1024, steps: int = 1) -> int:

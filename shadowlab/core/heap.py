@@ -78,8 +78,9 @@ def resolve_policy(policy: str | None = None) -> str:
     """
     source = "heap policy"
     if policy is None:
-        policy = os.environ.get(HEAP_ENV) or DEFAULT_POLICY
-        source = f"{HEAP_ENV}" if os.environ.get(HEAP_ENV) else source
+        policy = os.environ.get(HEAP_ENV)
+        source = HEAP_ENV if policy else source
+        policy = policy or DEFAULT_POLICY
     if policy not in HEAP_POLICIES:
         raise ValueError(f"{source} must be one of {', '.join(HEAP_POLICIES)}; "
                          f"got {policy!r}")

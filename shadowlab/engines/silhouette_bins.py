@@ -1026,9 +1026,7 @@ def _row_spans(grid: "SampleGrid", box: np.ndarray, lines, prim: np.ndarray):
     ny = (y1 - y0 + 1).astype(np.int64)
     n_rows = int(ny.sum())
     index = np.int32 if max(n_rows, len(prim)) < 2 ** 31 else np.int64
-    # each row's place in its primitive's run (``run_offsets`` in the narrow type)
-    row = (np.arange(n_rows, dtype=index)
-           - np.repeat((np.cumsum(ny) - ny).astype(index), ny)).astype(small)
+    row = run_offsets(ny, index).astype(small)
     row += np.repeat(y0, ny)
     lo, hi = np.repeat(x0, ny), np.repeat(x1, ny)
     ok = np.ones(len(row), bool)

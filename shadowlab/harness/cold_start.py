@@ -71,7 +71,8 @@ def child(t0: float, out_path: str, config_path: str, overrides_json: str, metho
         compute_shadows(scene, gbuf, view.light, method=method, **options)
         warm.append(time.perf_counter() - s)
     Path(out_path).write_text(json.dumps({
-        "cache_entries_at_start": entries, "heap": heap, "scene": scene.name, "triangles": scene.num_triangles,
+        "cache_entries_at_start": entries, "heap": heap, "scene": scene.name,
+        "triangles": scene.num_triangles,
         "resolution": list(view.camera.resolution),
         "import_seconds": t1 - t0, "setup_seconds": t2 - t1, "first_call_seconds": t3 - t2,
         "compile_seconds": float(sum(v for k, v in result.timings.items()
